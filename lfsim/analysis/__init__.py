@@ -1,0 +1,1 @@
+"""Analysis and plots: layouts, spot diagrams, reports."""

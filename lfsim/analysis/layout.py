@@ -1,0 +1,143 @@
+"""Lens layout (y-z section with traced ray fans), spot diagrams and a summary.
+
+This is a plain conventional-lens view of a design: first-order data, RMS
+spot radius per field at the image surface, and two pictures.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..fileio import save_figure, write_json
+from ..optics.sampling import field_rays, pupil_grid
+
+
+def _figure():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def spot_statistics(design, fo, rings: int = 8, wavelength_nm=None):
+    """RMS and geometric spot radii (µm) per field at the image surface.
+
+    Centred on the chief ray (pupil centre). Returns a list of dicts and the
+    per-field spot points (local image-surface x, y in mm).
+    """
+    tracer = design.tracer()
+    R_img, o_img = tracer.frames_numpy()[-1]
+    pupil = pupil_grid(rings, "hexapolar")
+    rows, spots = [], []
+    for f in design.system.fields:
+        o, d = field_rays(design.system, fo, f, pupil)
+        r = design.trace(o, d, wavelength_nm=wavelength_nm)
+        loc = (r.positions - o_img) @ R_img
+        ok = r.status == 0
+        if not ok[0]:
+            rows.append({"field": f, "rays": int(ok.sum()), "rms_um": None, "geo_um": None,
+                         "chief_x_mm": None, "chief_y_mm": None, "vignetted_fraction": float(1 - ok.mean())})
+            spots.append(np.zeros((0, 2)))
+            continue
+        xy = loc[ok, :2]
+        rel = xy - loc[0, :2]
+        rows.append({
+            "field": f,
+            "rays": int(ok.sum()),
+            "rms_um": float(1e3 * np.sqrt(np.mean(np.sum(rel**2, axis=1)))),
+            "geo_um": float(1e3 * np.max(np.linalg.norm(rel, axis=1))),
+            "chief_x_mm": float(loc[0, 0]),
+            "chief_y_mm": float(loc[0, 1]),
+            "vignetted_fraction": float(1 - ok.mean()),
+        })
+        spots.append(rel)
+    return rows, spots
+
+
+def plot_layout(design, fo, path, rays_per_field: int = 7):
+    """Draw the y-z section: surface profiles and a tangential fan per field."""
+    plt = _figure()
+    tracer = design.tracer()
+    frames = tracer.frames_numpy()
+    fig, ax = plt.subplots(figsize=(10, 4.5))
+    for i, s in enumerate(design.surfaces):
+        if s.interaction == "break":
+            continue
+        R, o = frames[i]
+        h = s.semi_diameter or (s.aperture.extent() if s.aperture else None)
+        if h is None:
+            h = 0.5 * fo.entrance_pupil_diameter * 1.2 if i < len(design.surfaces) - 1 else None
+        if h is None:
+            continue
+        y = np.linspace(-h, h, 101)
+        z = tracer.sag_numpy(i, np.zeros_like(y), y)
+        pts = np.stack([np.zeros_like(y), y, z], axis=1) @ R.T + o
+        style = dict(color="0.2", lw=1.2) if s.interaction != "none" else dict(color="0.5", lw=0.8, ls="--")
+        if s.interaction == "reflect":
+            style = dict(color="tab:purple", lw=1.6)
+        ax.plot(pts[:, 2], pts[:, 1], **style)
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    pupil = pupil_grid(rays_per_field, "fan_y")
+    for k, f in enumerate(design.system.fields):
+        o, d = field_rays(design.system, fo, f, pupil)
+        r = design.trace(o, d, record=True)
+        for j in range(len(o)):
+            last = len(r.path) if r.status[j] == 0 else r.failed_at[j]
+            zs = np.concatenate([[o[j, 2]], r.path[:last, j, 2]])
+            ys = np.concatenate([[o[j, 1]], r.path[:last, j, 1]])
+            ax.plot(zs, ys, color=colors[k % len(colors)], lw=0.6,
+                    label=f"{f:g}{'°' if design.system.field_type == 'angle' else ' mm'}" if j == 0 else None)
+    ax.set_aspect("equal")
+    ax.set_xlabel("z (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.set_title(f"{design.name}: layout (y-z section)")
+    ax.legend(title="field", fontsize=8, loc="best")
+    ax.grid(alpha=0.3)
+    save_figure(fig, path, dpi=130, bbox_inches="tight")
+    plt.close(fig)
+
+
+def plot_spots(design, rows, spots, path):
+    plt = _figure()
+    n = len(spots)
+    fig, axes = plt.subplots(1, n, figsize=(3.2 * n, 3.4), squeeze=False)
+    for ax, row, pts in zip(axes[0], rows, spots):
+        if len(pts):
+            ax.plot(1e3 * pts[:, 0], 1e3 * pts[:, 1], ".", ms=2)
+            lim = max(1e3 * np.max(np.abs(pts)), 1e-3) * 1.15
+            ax.set_xlim(-lim, lim)
+            ax.set_ylim(-lim, lim)
+        ax.set_aspect("equal")
+        unit = "°" if design.system.field_type == "angle" else " mm"
+        rms = "n/a" if row["rms_um"] is None else f"{row['rms_um']:.2f} µm"
+        ax.set_title(f"field {row['field']:g}{unit}\nRMS {rms}", fontsize=9)
+        ax.set_xlabel("x (µm)")
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("y (µm)")
+    fig.suptitle(f"{design.name}: spot diagrams at the image surface", fontsize=10)
+    fig.tight_layout()
+    save_figure(fig, path, dpi=130)
+    plt.close(fig)
+
+
+def layout_report(design, out_dir) -> dict:
+    """Write ``layout.png``, ``spots.png`` and ``summary.json`` into ``out_dir``."""
+    out = Path(out_dir)
+    fo = design.first_order()
+    rows, spots = spot_statistics(design, fo)
+    summary = {
+        "design": design.name,
+        "file": design.path,
+        "wavelength_nm": design.system.primary_wavelength_nm,
+        "first_order": fo.as_dict(),
+        "spots": rows,
+        "images": {"layout": "layout.png", "spots": "spots.png"},
+    }
+    plot_layout(design, fo, out / "layout.png")
+    plot_spots(design, rows, spots, out / "spots.png")
+    write_json(out / "summary.json", summary)
+    return summary

@@ -1,0 +1,183 @@
+"""The ``lfsim`` command. Thin: parse arguments, call the packages, print.
+
+Exit status: 0 success, 1 a check failed, 2 bad input (one line on stderr
+naming the file, key and value; never a traceback).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import json
+import math
+import sys
+
+import numpy as np
+
+from . import __version__
+from .backend import BackendError
+from .design import DesignError, load
+from .fileio import write_text
+
+
+class InputError(Exception):
+    """Bad command-line input (already formatted as one line)."""
+
+
+def _json_default(o):
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, (np.floating,)):
+        return float(o)
+    raise TypeError(type(o).__name__)
+
+
+def _dump(obj) -> str:
+    return json.dumps(obj, indent=2, default=_json_default, allow_nan=False)
+
+
+# ------------------------------------------------------------------- trace
+RAY_COLUMNS = ("x", "y", "z", "dx", "dy", "dz")
+
+
+def read_rays_csv(path: str) -> tuple[np.ndarray, np.ndarray]:
+    """Rays from a CSV with columns x,y,z,dx,dy,dz (header required)."""
+    try:
+        with open(path, newline="", encoding="utf-8") as f:
+            rows = list(csv.reader(f))
+    except OSError as e:
+        raise InputError(f"{path}: cannot read rays file ({e.strerror or e})") from None
+    rows = [r for r in rows if r and not r[0].lstrip().startswith("#")]
+    if not rows:
+        raise InputError(f"{path}: empty rays file: expected a header x,y,z,dx,dy,dz and rows")
+    header = [h.strip() for h in rows[0]]
+    for c in RAY_COLUMNS:
+        if c not in header:
+            raise InputError(f"{path}: column {c!r} missing: the header must name x,y,z,dx,dy,dz")
+    idx = [header.index(c) for c in RAY_COLUMNS]
+    data = np.empty((len(rows) - 1, 6))
+    for r, row in enumerate(rows[1:], start=2):
+        for k, (c, j) in enumerate(zip(RAY_COLUMNS, idx)):
+            try:
+                v = float(row[j])
+            except (IndexError, ValueError):
+                val = row[j] if j < len(row) else ""
+                raise InputError(f"{path}: line {r} column {c!r} = {val!r}: expected a number") from None
+            if not math.isfinite(v):
+                raise InputError(f"{path}: line {r} column {c!r} = {row[j]!r}: expected a finite number")
+            data[r - 2, k] = v
+    if len(data) == 0:
+        raise InputError(f"{path}: no rays after the header")
+    zero = np.where(np.linalg.norm(data[:, 3:], axis=1) == 0)[0]
+    if len(zero):
+        raise InputError(f"{path}: line {zero[0] + 2} direction (dx,dy,dz) = (0,0,0): must be nonzero")
+    return data[:, :3], data[:, 3:]
+
+
+def cmd_trace(args) -> int:
+    design = load(args.design)
+    o, d = read_rays_csv(args.rays)
+    r = design.trace(o, d, wavelength_nm=args.wavelength_nm, precision=args.precision)
+    if args.json:
+        print(_dump({
+            "design": design.path, "wavelength_nm": args.wavelength_nm or design.system.primary_wavelength_nm,
+            "precision": args.precision,
+            "rays": [{"position": r.positions[i].tolist(), "direction": r.directions[i].tolist(),
+                      "status": int(r.status[i]), "opl": float(r.opl[i])} for i in range(len(o))],
+        }))
+    else:
+        buf = io.StringIO()
+        w = csv.writer(buf)
+        w.writerow(["x", "y", "z", "dx", "dy", "dz", "status", "opl"])
+        for i in range(len(o)):
+            w.writerow([f"{v:.15g}" for v in (*r.positions[i], *r.directions[i])]
+                       + [int(r.status[i]), f"{r.opl[i]:.15g}"])
+        if args.out:
+            write_text(args.out, buf.getvalue())
+        else:
+            sys.stdout.write(buf.getvalue())
+    return 0
+
+
+def cmd_first_order(args) -> int:
+    design = load(args.design)
+    fo = design.first_order(args.wavelength_nm, method=args.method)
+    d = fo.as_dict()
+    if args.json:
+        print(_dump({"design": design.path, **d}))
+    else:
+        print(f"{design.name} ({design.path}) at {fo.wavelength_nm:g} nm, {fo.method}")
+        for k, v in d.items():
+            if k in ("wavelength_nm", "method"):
+                continue
+            print(f"  {k:26s} {v:.10g}" if isinstance(v, float) else f"  {k:26s} {v}")
+    return 0
+
+
+def cmd_layout(args) -> int:
+    from .analysis.layout import layout_report
+
+    design = load(args.design)
+    summary = layout_report(design, args.out)
+    if args.json:
+        print(_dump(summary))
+    else:
+        fo = summary["first_order"]
+        print(f"{design.name}: EFL {fo['efl']:.6f} mm, BFL {fo['bfl']:.6f} mm, F/# {fo['fno']:.4f}")
+        for row in summary["spots"]:
+            rms = "vignetted" if row["rms_um"] is None else f"RMS spot {row['rms_um']:.3f} µm"
+            print(f"  field {row['field']:g}: {rms}")
+        print(f"wrote {args.out}/layout.png, spots.png, summary.json")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="lfsim", description=__doc__.split("\n")[0])
+    p.add_argument("--version", action="version", version=f"lfsim {__version__}")
+    sub = p.add_subparsers(dest="verb", required=True, metavar="VERB")
+
+    t = sub.add_parser("trace", help="trace rays from a CSV through a design")
+    t.add_argument("design")
+    t.add_argument("--rays", required=True, help="CSV with columns x,y,z,dx,dy,dz (global frame, mm)")
+    t.add_argument("--wavelength-nm", type=float, default=None)
+    t.add_argument("--precision", choices=("float64", "float32"), default="float64")
+    t.add_argument("--out", help="write the CSV here (atomically) instead of stdout")
+    t.add_argument("--json", action="store_true")
+    t.set_defaults(func=cmd_trace)
+
+    f = sub.add_parser("first-order", help="first-order (paraxial / parabasal) properties")
+    f.add_argument("design")
+    f.add_argument("--wavelength-nm", type=float, default=None)
+    f.add_argument("--method", choices=("auto", "paraxial", "parabasal"), default="auto")
+    f.add_argument("--json", action="store_true")
+    f.set_defaults(func=cmd_first_order)
+
+    lay = sub.add_parser("layout", help="layout and spot-diagram pictures plus a summary")
+    lay.add_argument("design")
+    lay.add_argument("--out", required=True, help="output directory")
+    lay.add_argument("--json", action="store_true")
+    lay.set_defaults(func=cmd_layout)
+    return p
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if getattr(args, "wavelength_nm", None) is not None and not (
+        math.isfinite(args.wavelength_nm) and args.wavelength_nm > 0):
+        print(f"lfsim: error: --wavelength-nm = {args.wavelength_nm!r}: must be a positive number",
+              file=sys.stderr)
+        return 2
+    try:
+        return args.func(args)
+    except (DesignError, InputError, BackendError) as e:
+        print(f"lfsim: error: {e}", file=sys.stderr)
+        return 2
+    except ValueError as e:
+        print(f"lfsim: error: {' '.join(str(e).split())}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

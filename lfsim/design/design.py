@@ -1,0 +1,156 @@
+"""The :class:`Design` object: a loaded design file and its numpy-facing API."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..optics.prescription import System
+from .loader import load_system, system_from_dict
+
+
+@dataclass
+class TraceResult:
+    """Rays at the last surface (numpy, global frame).
+
+    Attributes
+    ----------
+    positions, directions : (N, 3) float64
+    status : (N,) int, 0 = reached the last surface (see ``lfsim.optics.Status``)
+    opl : (N,) optical path length from the ray origin, mm
+    failed_at : (N,) index into ``design.surfaces`` of the first failure, −1 if none
+    lenslet : (N, 2) lenslet (m, n) of the first lenslet array, −1 if none
+    path : (S, N, 3) hit points at every surface, when ``record=True``
+    """
+
+    positions: np.ndarray
+    directions: np.ndarray
+    status: np.ndarray
+    opl: np.ndarray
+    failed_at: np.ndarray
+    lenslet: np.ndarray
+    path: np.ndarray | None = None
+
+
+def _as_rays(name, a) -> np.ndarray:
+    arr = np.asarray(a, dtype=np.float64)
+    if arr.ndim == 1 and arr.shape[0] == 3:
+        arr = arr[None, :]
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"{name} must be an (N, 3) array, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} contains non-finite values")
+    return arr
+
+
+class Design:
+    """A validated design: its optics :class:`System` plus the raw file table."""
+
+    def __init__(self, system: System, raw: dict | None = None, path: str | None = None):
+        self.system = system
+        self.raw = raw or {}
+        self.path = path
+        self._tracers: dict = {}
+
+    @classmethod
+    def from_dict(cls, data: dict, file: str = "<dict>") -> "Design":
+        return cls(system_from_dict(data, file), data, file)
+
+    # ------------------------------------------------------------ properties
+    @property
+    def name(self) -> str:
+        return self.system.name
+
+    @property
+    def surfaces(self):
+        return self.system.surfaces
+
+    def parameter_names(self) -> list[str]:
+        return self.system.parameter_names()
+
+    def tracer(self, precision: str = "float64", **kw):
+        """The compiled :class:`~lfsim.optics.SequentialTracer` (cached per settings)."""
+        from ..optics.tracer import SequentialTracer
+
+        key = (precision, tuple(sorted(kw.items())))
+        if key not in self._tracers:
+            self._tracers[key] = SequentialTracer(self.system, precision, **kw)
+        return self._tracers[key]
+
+    # ----------------------------------------------------------------- trace
+    def trace(self, origins, directions, wavelength_nm: float | None = None,
+              precision: str = "float64", lenslet=None, record: bool = False) -> TraceResult:
+        """Trace rays given in the design's global frame to the last surface.
+
+        Parameters
+        ----------
+        origins, directions : array_like (N, 3)
+            Ray starts (mm) and directions (normalized here; must be nonzero).
+        wavelength_nm : float, optional
+            Defaults to the system's primary wavelength.
+        precision : {"float64", "float32"}
+        lenslet : array_like (N, 2) of int, optional
+            Lenslet (m, n) each ray goes through in the first lenslet array.
+        record : bool
+            Also return the hit point at every surface (``path``).
+        """
+        o = _as_rays("origins", origins)
+        d = _as_rays("directions", directions)
+        if o.shape != d.shape:
+            raise ValueError(f"origins {o.shape} and directions {d.shape} differ in shape")
+        if np.any(np.linalg.norm(d, axis=1) == 0):
+            raise ValueError("directions contain a zero vector")
+        lam = self.system.primary_wavelength_nm if wavelength_nm is None else float(wavelength_nm)
+        if not lam > 0:
+            raise ValueError(f"wavelength_nm must be > 0, got {wavelength_nm!r}")
+        tr = self.tracer(precision)
+        T = tr.T
+        import drjit as dr
+
+        from ..optics.tracer import RayState
+
+        def arr3(a):
+            a = a.astype(T.np_dtype)
+            return T.Array3(T.Float(a[:, 0]), T.Float(a[:, 1]), T.Float(a[:, 2]))
+
+        lens = None
+        if lenslet is not None:
+            lz = np.asarray(lenslet)
+            if lz.shape != (o.shape[0], 2) or not np.issubdtype(lz.dtype, np.integer):
+                raise ValueError(f"lenslet must be an (N, 2) integer array, got {lz.shape} {lz.dtype}")
+            if not self.system.arrays:
+                raise ValueError("lenslet given but the design has no lenslet array")
+            lens = (T.Int32(lz[:, 0].astype(np.int32)), T.Int32(lz[:, 1].astype(np.int32)))
+        with dr.suspend_grad():
+            out = tr.trace(tr.params(lam), RayState(arr3(o), arr3(d)), lenslet=lens, record=record)
+            dr.eval(out.p, out.d, out.status, out.opl, out.failed_at, out.lenslet_m, out.lenslet_n)
+
+        def np3(v):
+            return np.stack([np.asarray(v.x), np.asarray(v.y), np.asarray(v.z)], axis=1).astype(np.float64)
+
+        path = np.stack([np3(q) for q, _ in out.path]) if record else None
+        return TraceResult(
+            positions=np3(out.p),
+            directions=np3(out.d),
+            status=np.asarray(out.status).astype(np.int64),
+            opl=np.asarray(out.opl).astype(np.float64),
+            failed_at=np.asarray(out.failed_at).astype(np.int64),
+            lenslet=np.stack([np.asarray(out.lenslet_m), np.asarray(out.lenslet_n)], axis=1).astype(np.int64),
+            path=path,
+        )
+
+    def first_order(self, wavelength_nm: float | None = None, method: str = "auto"):
+        """First-order properties (see :func:`lfsim.optics.first_order.first_order`)."""
+        from ..optics.first_order import first_order
+
+        lam = self.system.primary_wavelength_nm if wavelength_nm is None else float(wavelength_nm)
+        tracer = None if method == "paraxial" else self.tracer("float64")
+        return first_order(self.system, lam, tracer=tracer, method=method)
+
+
+def load(path: str | Path) -> Design:
+    """Load and validate a design file (TOML). Raises :class:`DesignError`."""
+    system, raw = load_system(path)
+    return Design(system, raw, str(path))

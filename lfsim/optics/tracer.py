@@ -1,0 +1,353 @@
+"""Differentiable sequential real-ray tracer (Dr.Jit).
+
+A :class:`SequentialTracer` compiles a :class:`~lfsim.optics.prescription.System`
+into Dr.Jit code. Every design number is one entry of a packed parameter
+array ``P`` (see :meth:`System.parameter_table`), read with ``dr.gather`` so a
+reverse pass accumulates all gradients in one array. ``P`` may hold several
+parameter *blocks* (copies of the whole vector); each ray names its block,
+which batches forward-mode Jacobians, zoom configurations and wavelengths
+into a single kernel launch.
+
+Per surface: transform to the local frame, intersect (closed form for
+conics, Newton for aspheres/XY polynomials), test the aperture (and, inside a
+lenslet array, the lenslet cell), then refract (vector Snell's law),
+reflect, or reflect by total internal reflection, and accumulate the optical
+path length n·t. A ray that fails keeps its status code and its last valid
+state, so nothing downstream is NaN.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import IntEnum
+
+import drjit as dr
+import numpy as np
+
+from .. import backend
+from .prescription import Surface, System
+from .surfaces import Shape, intersect, normal, sag
+
+
+class Status(IntEnum):
+    """Per-ray outcome; the first failure along the path is kept."""
+
+    OK = 0
+    MISSED = 1  # no intersection on the vertex branch / outside the conic's domain
+    TIR = 2  # total internal reflection where refraction was expected
+    VIGNETTED = 3  # outside a clear aperture (or outside the lenslet array)
+    NOT_CONVERGED = 4  # Newton iteration did not converge
+    WRONG_LENSLET = 5  # crossed into a neighbouring lenslet's cell
+    NO_TIR = 6  # refraction possible where total internal reflection was required
+
+
+@dataclass
+class RayState:
+    """Dr.Jit rays: positions ``p`` and unit directions ``d`` (Array3), global frame."""
+
+    p: object
+    d: object
+
+
+@dataclass
+class TraceOutput:
+    """Dr.Jit result of :meth:`SequentialTracer.trace` at the last surface."""
+
+    p: object
+    d: object
+    status: object  # UInt32
+    opl: object  # Float, optical path length from the ray origin (mm)
+    failed_at: object  # Int32, surface index of the first failure (−1: none)
+    lenslet_m: object  # Int32, lenslet column in the first array group (−1: none)
+    lenslet_n: object  # Int32
+    path: list | None  # (position, direction) after every surface (global), when recorded
+
+
+def _rot_xyz(ax, ay, az, T):
+    """Rotation R = Rx(ax)·Ry(ay)·Rz(az) (radians, right-handed, active)."""
+    cx, sx = dr.cos(ax), dr.sin(ax)
+    cy, sy = dr.cos(ay), dr.sin(ay)
+    cz, sz = dr.cos(az), dr.sin(az)
+    Rx = T.Matrix3(1, 0, 0, 0, cx, -sx, 0, sx, cx)
+    Ry = T.Matrix3(cy, 0, sy, 0, 1, 0, -sy, 0, cy)
+    Rz = T.Matrix3(cz, -sz, 0, sz, cz, 0, 0, 0, 1)
+    return Rx @ Ry @ Rz
+
+
+class SequentialTracer:
+    """Compile a :class:`System` for tracing at one precision.
+
+    Parameters
+    ----------
+    system : System
+        The sequential prescription (last surface = image surface).
+    precision : {"float64", "float32"}
+    newton_tol : float, optional
+        Convergence tolerance on the Newton step |Δt| (mm). Default 1e-12 for
+        float64, 1e-5 for float32.
+    newton_max_iter : int
+        Iteration cap of the Newton loop (default 16).
+    """
+
+    def __init__(self, system: System, precision: str = "float64",
+                 newton_tol: float | None = None, newton_max_iter: int = 16):
+        self.system = system
+        self.T = backend.types(precision)
+        self.precision = precision
+        self.names = system.parameter_names()
+        self.index = {n: i for i, n in enumerate(self.names)}
+        self.n_params = len(self.names)
+        self.newton_tol = newton_tol if newton_tol is not None else (
+            1e-12 if precision == "float64" else 1e-5)
+        self.newton_max_iter = int(newton_max_iter)
+        self.groups = system.array_groups()
+        self._group_first = {idx[0]: g for g, idx in self.groups.items()}
+        self._index_param = self._media_params()
+
+    # ----------------------------------------------------------- parameters
+    def params(self, wavelength_nm: float | None = None, values=None):
+        """Packed parameter array (one block) at ``wavelength_nm``.
+
+        ``values`` (numpy, length ``n_params`` or a multiple) overrides the
+        design values, e.g. for finite differences or several blocks.
+        """
+        if values is None:
+            lam = wavelength_nm if wavelength_nm is not None else self.system.primary_wavelength_nm
+            values = np.asarray(self.system.parameter_values(lam), dtype=np.float64)
+        values = np.asarray(values, dtype=np.float64).ravel()
+        if values.size % self.n_params:
+            raise ValueError(
+                f"parameter array of length {values.size} is not a multiple of {self.n_params}")
+        return self.T.Float(values.astype(self.T.np_dtype))
+
+    def _media_params(self) -> list[str]:
+        """Name of the index parameter of the medium *before* each surface."""
+        cur = "object.index"
+        out = []
+        for s in self.system.surfaces:
+            out.append(cur)
+            if s.interaction == "refract":
+                cur = f"{s.name}.index"
+        out.append(cur)
+        return out
+
+    def _shape_owner(self, s: Surface) -> Surface:
+        return self.system.surfaces[s.same_as] if s.same_as is not None else s
+
+    # --------------------------------------------------------------- frames
+    def frames(self, P):
+        """Local frames (R, o) of every surface, one entry per parameter block.
+
+        Returns lists of Matrix3 / Array3 of width = number of blocks; a point
+        in surface i's local frame maps to global as ``R[i] @ x + o[i]``.
+        """
+        T = self.T
+        nb = dr.width(P) // self.n_params
+        blk = dr.arange(T.UInt32, nb) * self.n_params
+
+        def g(name):
+            return dr.gather(T.Float, P, blk + self.index[name])
+
+        deg = math.pi / 180.0
+        R_cur = dr.identity(T.Matrix3, nb)
+        o_cur = dr.zeros(T.Array3, nb)
+        Rs, os_ = [], []
+        for s in self.system.surfaces:
+            if s.same_as is not None:
+                R_s, o_s = Rs[s.same_as], os_[s.same_as]
+            else:
+                tilt = _rot_xyz(g(f"{s.name}.tilt_x") * deg, g(f"{s.name}.tilt_y") * deg,
+                                g(f"{s.name}.tilt_z") * deg, T)
+                shift = T.Array3(g(f"{s.name}.decenter_x"), g(f"{s.name}.decenter_y"), 0.0)
+                if s.global_position is not None:
+                    pos = T.Array3(g(f"{s.name}.position_x"), g(f"{s.name}.position_y"),
+                                   g(f"{s.name}.position_z"))
+                    R_s, o_s = tilt, pos + tilt @ shift
+                else:
+                    R_s, o_s = R_cur @ tilt, o_cur + R_cur @ shift
+            Rs.append(R_s)
+            os_.append(o_s)
+            if not s.return_axis or s.global_position is not None:
+                R_cur, o_cur = R_s, o_s
+            o_cur = o_cur + R_cur @ T.Array3(0.0, 0.0, g(f"{s.name}.thickness"))
+        return Rs, os_
+
+    # ---------------------------------------------------------------- trace
+    def trace(self, P, rays: RayState, block=None, lenslet=None, record: bool = False) -> TraceOutput:
+        """Trace ``rays`` through every surface; see the module docstring.
+
+        Parameters
+        ----------
+        P : Float
+            Packed parameters (``params()``), possibly several blocks, may
+            have gradients enabled.
+        rays : RayState
+            Origins and directions in the global frame (directions are
+            normalized here).
+        block : UInt32, optional
+            Parameter block of each ray (default: block 0 for all).
+        lenslet : (Int32, Int32), optional
+            Lenslet (m, n) each ray is aimed through in the first array group;
+            by default it is the cell where the ray crosses the group's first
+            vertex plane.
+        record : bool
+            Also return the global hit position at every surface.
+        """
+        T = self.T
+        n = dr.width(rays.p)
+        if block is None:
+            block = dr.opaque(T.UInt32, 0, n)
+        base = block * self.n_params
+        Rs, os_ = self.frames(P)
+
+        def pr(name):
+            return dr.gather(T.Float, P, base + self.index[name])
+
+        p = T.Array3(rays.p)
+        d = dr.normalize(T.Array3(rays.d))
+        status = dr.zeros(T.UInt32, n)
+        failed_at = dr.full(T.Int32, -1, n)
+        opl = dr.zeros(T.Float, n)
+        lens_m = dr.full(T.Int32, -1, n)
+        lens_n = dr.full(T.Int32, -1, n)
+        first_group = min(self._group_first) if self._group_first else None
+        cell = {}
+        path = [] if record else None
+
+        def fail(mask, code, i):
+            nonlocal status, failed_at
+            new = (status == 0) & mask
+            status = dr.select(new, int(code), status)
+            failed_at = dr.select(new, int(i), failed_at)
+
+        for i, s in enumerate(self.system.surfaces):
+            if s.interaction == "break":
+                if record:
+                    path.append((p, d))
+                continue
+            multi = dr.width(Rs[i]) > 1
+            R = dr.gather(T.Matrix3, Rs[i], block) if multi else Rs[i]
+            o = dr.gather(T.Array3, os_[i], block) if multi else os_[i]
+            Rt = R.T
+            pl = Rt @ (p - o)
+            dl = Rt @ d
+
+            # Lenslet-array membership: pick the cell at the group's first surface.
+            offset = None
+            if s.array is not None:
+                arr = self.system.arrays[s.array]
+                px, py = pr(f"{arr.name}.pitch_x"), pr(f"{arr.name}.pitch_y")
+                cx, cy = pr(f"{arr.name}.center_x"), pr(f"{arr.name}.center_y")
+                if s.array not in cell:
+                    if lenslet is not None and i == first_group:
+                        m_idx, n_idx = T.Int32(lenslet[0]), T.Int32(lenslet[1])
+                    else:
+                        ok_z = dr.abs(dl.z) > 0.0
+                        t0 = dr.select(ok_z, -pl.z / dr.select(ok_z, dl.z, 1.0), 0.0)
+                        x0, y0 = dr.fma(dl.x, t0, pl.x), dr.fma(dl.y, t0, pl.y)
+                        m_idx = T.Int32(dr.floor(dr.detach((x0 - cx) / px) + 0.5 * arr.m))
+                        n_idx = T.Int32(dr.floor(dr.detach((y0 - cy) / py) + 0.5 * arr.n))
+                    outside = (m_idx < 0) | (m_idx >= arr.m) | (n_idx < 0) | (n_idx >= arr.n)
+                    fail(outside, Status.VIGNETTED, i)
+                    m_idx = dr.select(outside, 0, m_idx)
+                    n_idx = dr.select(outside, 0, n_idx)
+                    cell[s.array] = (m_idx, n_idx)
+                    if i == first_group:
+                        lens_m = dr.select(outside, -1, m_idx)
+                        lens_n = dr.select(outside, -1, n_idx)
+                m_idx, n_idx = cell[s.array]
+                xm = cx + (T.Float(m_idx) - 0.5 * (arr.m - 1)) * px
+                yn = cy + (T.Float(n_idx) - 0.5 * (arr.n - 1)) * py
+                offset = T.Array3(xm, yn, 0.0)
+                pl = pl - offset
+
+            owner = self._shape_owner(s)
+            shape = Shape(
+                c=pr(f"{owner.name}.curvature"),
+                k=pr(f"{owner.name}.conic"),
+                asphere={o_: pr(f"{owner.name}.A{o_}") for o_ in owner.asphere},
+                xy={ij: pr(f"{owner.name}.x{ij[0]}y{ij[1]}") for ij in owner.xy},
+                inv_norm=1.0 / owner.norm_radius,
+            )
+            t, ok, conv = intersect(pl, dl, shape, T, owner.needs_newton,
+                                    self.newton_tol, self.newton_max_iter)
+            fail(~ok, Status.MISSED, i)
+            fail(ok & ~conv, Status.NOT_CONVERGED, i)
+            t = dr.select(ok, t, 0.0)
+            hit = dr.fma(dl, t, pl)
+
+            # Apertures (in lenslet-relative coordinates inside an array).
+            ap = s.aperture
+            if ap is not None:
+                ax, ay = hit.x - ap.decenter[0], hit.y - ap.decenter[1]
+                if ap.kind == "circular":
+                    outside = dr.fma(ax, ax, ay * ay) > ap.radius * ap.radius
+                else:
+                    outside = (dr.abs(ax) > ap.half_width[0]) | (dr.abs(ay) > ap.half_width[1])
+                fail(outside, Status.VIGNETTED, i)
+            if offset is not None:
+                crossed = (dr.abs(hit.x) > 0.5 * px) | (dr.abs(hit.y) > 0.5 * py)
+                fail(crossed, Status.WRONG_LENSLET, i)
+
+            # Interaction.
+            n1 = pr(self._index_param[i])
+            d_new = dl
+            if s.interaction in ("refract", "reflect", "tir"):
+                _, zx, zy, _ = sag(hit.x, hit.y, shape)
+                N = normal(zx, zy, T.Array3)
+                cos_i = dr.dot(dl, N)
+                N = dr.select(cos_i < 0.0, -N, N)
+                cos_i = dr.abs(cos_i)
+                reflected = dl - 2.0 * cos_i * N
+                if s.interaction == "reflect":
+                    d_new = reflected
+                else:
+                    n2 = pr(f"{s.name}.index")
+                    mu = n1 / n2
+                    kk = 1.0 - mu * mu * (1.0 - cos_i * cos_i)
+                    can_refract = kk >= 0.0
+                    if s.interaction == "refract":
+                        fail(~can_refract, Status.TIR, i)
+                        root = dr.sqrt(dr.select(can_refract, kk, 1.0))
+                        d_new = dr.select(can_refract, mu * dl + (root - mu * cos_i) * N, dl)
+                    else:
+                        fail(can_refract, Status.NO_TIR, i)
+                        d_new = reflected
+
+            alive = status == 0
+            p_new = R @ (hit + offset if offset is not None else hit) + o
+            p = dr.select(alive, p_new, p)
+            d = dr.select(alive, dr.normalize(R @ d_new), d)
+            opl = dr.select(alive, opl + n1 * t, opl)
+            if record:
+                path.append((p, d))
+        return TraceOutput(p, d, status, opl, failed_at, lens_m, lens_n, path)
+
+    # ------------------------------------------------------- numpy helpers
+    def frames_numpy(self, P=None) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Frames (R 3×3, o 3) of every surface for the first parameter block."""
+        P = self.params() if P is None else P
+        with dr.suspend_grad():
+            Rs, os_ = self.frames(P)
+            out = []
+            for R, o in zip(Rs, os_):
+                Rn = np.array([[float(R[i][j][0]) for j in range(3)] for i in range(3)])
+                on = np.array([float(o[i][0]) for i in range(3)])
+                out.append((Rn, on))
+        return out
+
+    def sag_numpy(self, i: int, x, y) -> np.ndarray:
+        """Sag of surface ``i`` (the same model the tracer intersects) at local (x, y)."""
+        s = self.system.surfaces[i]
+        owner = self._shape_owner(s)
+        T = self.T
+        shape = Shape(T.Float(owner.curvature), T.Float(owner.conic),
+                      {o: T.Float(v) for o, v in owner.asphere.items()},
+                      {ij: T.Float(v) for ij, v in owner.xy.items()}, 1.0 / owner.norm_radius)
+        x = np.asarray(x, dtype=T.np_dtype)
+        y = np.asarray(y, dtype=T.np_dtype)
+        with dr.suspend_grad():
+            z, _, _, inside = sag(T.Float(x.ravel()), T.Float(y.ravel()), shape)
+            z = dr.select(inside, z, dr.nan)
+        return np.asarray(z, dtype=np.float64).reshape(x.shape)
