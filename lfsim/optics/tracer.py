@@ -226,9 +226,11 @@ class SequentialTracer:
                 if record:
                     path.append((p, d))
                 continue
-            multi = dr.width(Rs[i]) > 1
-            R = dr.gather(T.Matrix3, Rs[i], block) if multi else Rs[i]
-            o = dr.gather(T.Array3, os_[i], block) if multi else os_[i]
+            # Per-ray gathers (also for a single block): the reverse pass then
+            # scatter-adds into the frame arrays inside one kernel instead of
+            # launching a reduction per broadcast scalar.
+            R = dr.gather(T.Matrix3, Rs[i], block)
+            o = dr.gather(T.Array3, os_[i], block)
             Rt = R.T
             pl = Rt @ (p - o)
             dl = Rt @ d
