@@ -1,0 +1,61 @@
+"""The lfsim command: trace, first-order, layout; exit codes and outputs."""
+
+import json
+
+import numpy as np
+
+from lfsim.cli import main
+
+
+def test_trace_csv_and_json(scenes, tmp_path, capsys):
+    rays = tmp_path / "rays.csv"
+    rays.write_text("x,y,z,dx,dy,dz\n0,0,-5,0,0,1\n0,2,-5,0,0,1\n0,30,-5,0,0,1\n")
+    out = tmp_path / "out.csv"
+    assert main(["trace", str(scenes / "cooke_triplet.toml"), "--rays", str(rays), "--out", str(out)]) == 0
+    rows = [line.split(",") for line in out.read_text().strip().splitlines()]
+    assert rows[0] == ["x", "y", "z", "dx", "dy", "dz", "status", "opl"]
+    assert float(rows[1][2]) == 60.17675 and rows[1][6] == "0" and rows[3][6] == "1"
+    assert main(["trace", str(scenes / "cooke_triplet.toml"), "--rays", str(rays), "--json",
+                 "--precision", "float32", "--wavelength-nm", "486.1327"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["precision"] == "float32" and len(data["rays"]) == 3
+    assert abs(data["rays"][1]["position"][2] - 60.17675) < 1e-4
+
+
+def test_trace_bad_rays_file_exits_2(scenes, tmp_path, capsys):
+    design = str(scenes / "cooke_triplet.toml")
+    cases = {
+        "x,y,z,dx,dy\n0,0,0,0,1\n": "column 'dz' missing",
+        "x,y,z,dx,dy,dz\n0,0,abc,0,0,1\n": "line 2 column 'z' = 'abc'",
+        "x,y,z,dx,dy,dz\n0,0,0,0,0,0\n": "must be nonzero",
+        "x,y,z,dx,dy,dz\n0,0,inf,0,0,1\n": "finite",
+    }
+    for text, fragment in cases.items():
+        p = tmp_path / "r.csv"
+        p.write_text(text)
+        out = tmp_path / "never.csv"
+        assert main(["trace", design, "--rays", str(p), "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert fragment in err and str(p) in err and err.count("\n") == 1, err
+        assert not out.exists()
+    assert main(["trace", design, "--rays", str(tmp_path / "missing.csv")]) == 2
+    assert main(["trace", design, "--rays", str(p), "--wavelength-nm", "-3"]) == 2
+
+
+def test_first_order_json(scenes, capsys):
+    assert main(["first-order", str(scenes / "cooke_triplet.toml"), "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert abs(d["efl"] - 50.0216) < 1e-3 and d["method"] == "paraxial"
+    assert abs(d["entrance_pupil_diameter"] - 10.0) < 1e-12
+
+
+def test_layout_writes_pictures_and_summary(scenes, tmp_path, capsys):
+    out = tmp_path / "lay"
+    assert main(["layout", str(scenes / "cooke_triplet.toml"), "--out", str(out)]) == 0
+    for f in ("layout.png", "spots.png", "summary.json"):
+        assert (out / f).stat().st_size > 1000 or f == "summary.json"
+    s = json.loads((out / "summary.json").read_text())
+    rms = [row["rms_um"] for row in s["spots"]]
+    assert len(rms) == 3 and all(0 < v < 50 for v in rms)
+    assert not list(out.glob(".*"))  # no temporary files left behind
+    assert np.isfinite(s["first_order"]["efl"])

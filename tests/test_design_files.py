@@ -1,0 +1,102 @@
+"""Design-file loading: every bad value gets one line naming file, key, value."""
+
+import math
+
+import pytest
+
+import lfsim
+from lfsim import DesignError
+from lfsim.cli import main
+
+GOOD = """
+[system]
+aperture = { type = "epd", value = 4.0 }
+[[surfaces]]
+radius = 20.0
+thickness = 3.0
+material = "N-BK7"
+semi_diameter = 5.0
+[[surfaces]]
+radius = -20.0
+thickness = 18.0
+[[surfaces]]
+dummy = true
+"""
+
+
+def test_good_design_loads(make_design):
+    d = make_design(GOOD)
+    assert [s.name for s in d.surfaces] == ["S1", "S2", "S3"]
+    assert d.surfaces[0].curvature == pytest.approx(0.05)
+    assert math.isclose(d.surfaces[0].material.nd, 1.5168, abs_tol=1e-6)
+
+
+BAD = [
+    # (replacement of a line of GOOD or extra text, expected key, expected value fragment)
+    ("radius = 20.0", "radius = 0", "surfaces[0].radius", "0"),
+    ("radius = 20.0", 'radius = "big"', "surfaces[0].radius", "'big'"),
+    ("radius = 20.0", "radius = nan", "surfaces[0].radius", "nan"),
+    ('material = "N-BK7"', 'material = "UNOBTAINIUM"', "surfaces[0].material", "'UNOBTAINIUM'"),
+    ('material = "N-BK7"', "material = -1.5", "surfaces[0].material", "-1.5"),
+    ("semi_diameter = 5.0", "semi_diameter = -5.0", "surfaces[0].semi_diameter", "-5.0"),
+    ("semi_diameter = 5.0", "semi_diameter = 25.0", "surfaces[0].semi_diameter", "25.0"),
+    ("thickness = 3.0", "thickness = true", "surfaces[0].thickness", "True"),
+    ("thickness = 3.0", "thicknes = 3.0", "surfaces[0].thicknes", "3.0"),
+    ("radius = 20.0", "radius = 20.0\nasphere = { A3 = 1e-5 }", "surfaces[0].asphere.A3", "1e-05"),
+    ("radius = 20.0", "radius = 20.0\nxy = { x6y6 = 1e-5 }", "surfaces[0].xy.x6y6", "1e-05"),
+    ("radius = 20.0", "radius = 20.0\nxy = { x1y0 = 1e-5 }\nnorm_radius = 0", "surfaces[0].norm_radius", "0"),
+    ("radius = 20.0", "radius = 20.0\ntilt = [1, 2]", "surfaces[0].tilt", "[1, 2]"),
+    ("radius = 20.0", "radius = 20.0\nmirror = true\ntir = true", "surfaces[0].tir", "True"),
+    ("radius = 20.0", 'radius = 20.0\nsame_as = "nowhere"', "surfaces[0].same_as", "'nowhere'"),
+    ("radius = 20.0", 'radius = 20.0\narray = "mla"', "surfaces[0].array", "'mla'"),
+    ('value = 4.0', 'value = -4.0', "system.aperture.value", "-4.0"),
+    ('type = "epd"', 'type = "diameter"', "system.aperture.type", "'diameter'"),
+    ("[system]", "[system]\nwavelengths_nm = [50.0]", "system.wavelengths_nm", "[50.0]"),
+    ("[system]", "[object]\ndistance = -5\n[system]", "object.distance", "-5.0"),
+]
+
+
+@pytest.mark.parametrize("old,new,key,value", BAD)
+def test_bad_values_name_file_key_and_value(tmp_path, old, new, key, value):
+    p = tmp_path / "bad.toml"
+    assert old in GOOD
+    p.write_text(GOOD.replace(old, new, 1))
+    with pytest.raises(DesignError) as e:
+        lfsim.load(p)
+    msg = str(e.value)
+    assert "\n" not in msg
+    assert str(p) in msg and key in msg and value in msg, msg
+    assert e.value.key == key
+
+
+def test_array_pitch_and_size_are_validated(tmp_path):
+    base = GOOD.replace("[[surfaces]]\nradius = 20.0", '[arrays.mla]\nm = 3\nn = 2\npitch = 1.0\n[[surfaces]]\nradius = 20.0\narray = "mla"', 1)
+    base = base.replace("semi_diameter = 5.0", "")
+    p = tmp_path / "a.toml"
+    p.write_text(base)
+    lfsim.load(p)
+    for old, new, key in [("pitch = 1.0", "pitch = 0.0", "arrays.mla.pitch"), ("m = 3", "m = 0", "arrays.mla.m"),
+                          ("n = 2", "n = 2.5", "arrays.mla.n")]:
+        p.write_text(base.replace(old, new))
+        with pytest.raises(DesignError, match=key.replace(".", r"\.")):
+            lfsim.load(p)
+
+
+def test_malformed_toml_and_missing_file(tmp_path, capsys):
+    p = tmp_path / "broken.toml"
+    p.write_text("[[surfaces]\nradius = ")
+    with pytest.raises(DesignError, match="invalid TOML"):
+        lfsim.load(p)
+    assert main(["first-order", str(p)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "broken.toml" in err and "Traceback" not in err
+    assert main(["first-order", str(tmp_path / "nope.toml")]) == 2
+    assert "file not found" in capsys.readouterr().err
+
+
+def test_material_kinds(make_design):
+    d = make_design(GOOD.replace('material = "N-BK7"', "material = { nd = 1.5168, vd = 64.17 }"))
+    m = d.surfaces[0].material
+    assert abs(m.nd - 1.5168) < 1e-12 and abs(m.vd - 64.17) < 1e-9
+    d = make_design(GOOD.replace('material = "N-BK7"', "material = 1.49"))
+    assert d.surfaces[0].material.index(450.0) == 1.49
