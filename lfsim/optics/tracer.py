@@ -326,6 +326,58 @@ class SequentialTracer:
                 path.append((p, d))
         return TraceOutput(p, d, status, opl, failed_at, lens_m, lens_n, path)
 
+    # ------------------------------------------------------------ jacobian
+    def jacobian(self, values, rays: RayState, names: list[str], outputs=None):
+        """Forward-mode Jacobian of ray outputs w.r.t. named parameters, in one launch.
+
+        The rays are replicated once per parameter; copy k uses parameter
+        block k, in which only parameter ``names[k]`` depends on a single
+        AD seed. One forward pass then yields every column.
+
+        Parameters
+        ----------
+        values : array_like
+            One parameter vector (``n_params``).
+        rays : RayState
+            N rays.
+        names : list of str
+            Parameters to differentiate against (K of them).
+        outputs : callable, optional
+            ``TraceOutput -> list of Float`` (default: final x, y, z, dx, dy, dz).
+
+        Returns
+        -------
+        J : ndarray (K, n_outputs, N)
+            ``J[k, i, j] = d output_i(ray j) / d names[k]``; zero for failed rays.
+        status : ndarray (N,)
+            Status of each ray at the nominal parameters.
+        """
+        T = self.T
+        values = np.asarray(values, dtype=np.float64).ravel()
+        if values.size != self.n_params:
+            raise ValueError(f"expected {self.n_params} parameter values, got {values.size}")
+        unknown = [n for n in names if n not in self.index]
+        if unknown:
+            raise ValueError(f"unknown parameter(s) {unknown}: see parameter_names()")
+        K, N = len(names), dr.width(rays.p)
+        mask = np.zeros(K * self.n_params)
+        for k, name in enumerate(names):
+            mask[k * self.n_params + self.index[name]] = 1.0
+        seed = dr.zeros(T.Float, 1)
+        dr.enable_grad(seed)
+        P = T.Float(np.tile(values, K).astype(T.np_dtype)) + seed * T.Float(mask.astype(T.np_dtype))
+        j = dr.arange(T.UInt32, K * N)
+        ray_idx = j % N
+        rep = RayState(dr.gather(T.Array3, rays.p, ray_idx), dr.gather(T.Array3, rays.d, ray_idx))
+        out = self.trace(P, rep, block=j // N)
+        outs = outputs(out) if outputs else [out.p.x, out.p.y, out.p.z, out.d.x, out.d.y, out.d.z]
+        dr.forward_from(seed)
+        ok = np.asarray(out.status) == 0
+        J = np.stack([np.where(ok, np.asarray(dr.grad(v), dtype=np.float64), 0.0).reshape(K, N)
+                      for v in outs], axis=1)
+        status = np.asarray(out.status)[:N].astype(np.int64)
+        return J, status
+
     # ------------------------------------------------------- numpy helpers
     def frames_numpy(self, P=None) -> list[tuple[np.ndarray, np.ndarray]]:
         """Frames (R 3×3, o 3) of every surface for the first parameter block."""
