@@ -252,6 +252,10 @@ def parabasal_matrices(tracer, wavelength_nm: float):
     targets = [out.path[stop][0], out.path[stop][1], out.path[-1][0], out.path[-1][1]]
     dr.forward_to(*targets, flags=dr.ADFlag.ClearNone)
 
+    def parity(k):
+        # An odd number of reflections mirrors the image; flip e1 so x keeps its sense.
+        return -1.0 if sum(s.interaction in ("reflect", "tir") for s in system.surfaces[: k + 1]) % 2 else 1.0
+
     def jac(k, n_here, up_frame):
         p, d = out.path[k]
         p0 = np.array([float(p[i][0]) for i in range(3)])
@@ -261,6 +265,7 @@ def parabasal_matrices(tracer, wavelength_nm: float):
         # Position derivative projected on the plane ⟂ the OAR through the hit point.
         Jp = Jp - np.outer(Jp @ dir0, dir0)
         f1, f2 = _perp_basis(dir0, up_frame)
+        f1 = parity(k) * f1
         rows = np.array([Jp @ f1, Jp @ f2, n_here * (Jd @ f1), n_here * (Jd @ f2)])  # (4 out, 4 in)
         return rows, p0, dir0
 

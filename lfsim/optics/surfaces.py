@@ -46,11 +46,12 @@ def sag(x, y, s: Shape):
     """Sag z(x, y) and its partial derivatives (z, ∂z/∂x, ∂z/∂y) and a domain mask.
 
     The mask is false where the base conic is undefined
-    (1 − (1+k) c² r² < 0).
+    (1 − (1+k) c² r² ≤ 0).
     """
     r2 = dr.fma(x, x, y * y)
     arg = 1.0 - (1.0 + s.k) * s.c * s.c * r2
-    inside = arg >= 0.0
+    # arg = 0 is the rim of a hemisphere, where the slope is infinite: outside.
+    inside = arg > 0.0
     root = dr.sqrt(dr.select(inside, arg, 1.0))
     z = s.c * r2 / (1.0 + root)
     # d z / d(r²) · 2 = c / root  →  ∂z/∂x = x c / root
@@ -100,7 +101,7 @@ def normal(zx, zy, Array3):
     return dr.normalize(Array3(-zx, -zy, 1.0))
 
 
-def intersect_conic(p, d, c, k, Float):
+def intersect_conic(p, d, c, k):
     """Exact intersection with the base conic c(x² + y² + (1+k) z²) − 2z = 0.
 
     The ray is first moved to the vertex plane (z = 0) so the quadratic is
@@ -108,7 +109,8 @@ def intersect_conic(p, d, c, k, Float):
     the cancellation-free form ``t = −C / (B + sign(B)·√(B² − AC))``, which
     tends to the plane solution as c → 0 for either propagation direction.
     """
-    dz_ok = dr.abs(d.z) > 1e-300 if Float.__name__.endswith("64") else dr.abs(d.z) > 1e-30
+    # Rays (nearly) parallel to the vertex plane are solved from where they are.
+    dz_ok = dr.abs(d.z) > 1e-9
     t0 = dr.select(dz_ok, -p.z / dr.select(dz_ok, d.z, 1.0), 0.0)
     x = dr.fma(d.x, t0, p.x)
     y = dr.fma(d.y, t0, p.y)
@@ -136,14 +138,15 @@ def intersect(p, d, s: Shape, T, newton: bool, tol: float, max_iter: int):
     final Newton step is taken with gradients attached, which gives the exact
     implicit derivative dt/dθ = −(∂f/∂θ)/(∂f/∂t) at the converged root.
     """
-    t, ok = intersect_conic(p, d, s.c, s.k, T.Float)
+    t, ok = intersect_conic(p, d, s.c, s.k)
     if not newton:
         return t, ok, T.Bool(True)
 
     with dr.suspend_grad():
         pd_, dd_ = dr.detach(p), dr.detach(d)
         sd = s.detached()
-        t_plane = dr.select(dr.abs(dd_.z) > 0.0, -pd_.z / dr.select(dr.abs(dd_.z) > 0.0, dd_.z, 1.0), 0.0)
+        dz_ok = dr.abs(dd_.z) > 1e-9
+        t_plane = dr.select(dz_ok, -pd_.z / dr.select(dz_ok, dd_.z, 1.0), 0.0)
         t_start = dr.select(ok, dr.detach(t), t_plane)
 
         def cond(t, it, done):
