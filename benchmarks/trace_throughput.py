@@ -31,7 +31,8 @@ Dr.Jit IR and compiling the kernels, reported as ``first_call_s`` with the
 kernels' codegen/compile times from Dr.Jit's kernel history), then the best
 of ``--repeats`` calls. lfsim calls end with ``dr.eval`` of everything they
 return and ``dr.sync_thread()``, so a timing includes the kernel run and the
-Python-side IR construction. By default Dr.Jit's on-disk kernel cache is a
+Python-side IR construction. The baselines have nothing to compile; their
+warm-up call uses at most 1e4 rays. By default Dr.Jit's on-disk kernel cache is a
 fresh private directory (so first-call times are real compile times); pass
 ``--warm-cache`` to use ``~/.drjit``. Baselines above ``--numpy-max-rays`` /
 ``--optiland-max-rays`` rays are timed on a prefix of that size (the bundle
@@ -126,6 +127,14 @@ def _reset_peak_rss() -> bool:
 
 
 _MAX_RSS_MB = [0.0]
+_LAST_CPU = [float("nan")]  # process CPU time / wall time of the last best call
+
+
+def _loadavg():
+    try:
+        return list(os.getloadavg())
+    except OSError:
+        return None
 
 
 def _rss_mb(field: str = "VmHWM") -> float | None:
@@ -157,14 +166,18 @@ def _timed(fn, repeats: int, setup=None, warmup=None):
     first = time.perf_counter() - t0
     del res
     times = []
+    cpu = []
     res = None
     for _ in range(repeats):
         res = None
         gc.collect()
         arg = setup() if setup else None
+        c0 = time.process_time()
         t0 = time.perf_counter()
         res = fn(arg) if setup else fn()
         times.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
+    _LAST_CPU[0] = cpu[int(np.argmin(times))] / min(times)
     return first, min(times), times, res
 
 
@@ -348,7 +361,9 @@ def bench_scene(path: Path, args, log) -> dict:
         numpy_ok = False
         out["notes"].append(f"numpy baseline skipped: {e}")
     optiland_lens = None
-    if args.no_optiland:
+    if getattr(args, "optiland_unavailable", None):
+        out["notes"].append(args.optiland_unavailable)
+    elif args.no_optiland:
         out["notes"].append("optiland skipped (--no-optiland)")
     elif Path(path).stem != "cooke_triplet":
         out["notes"].append("optiland column only for the Cooke triplet")
@@ -356,11 +371,10 @@ def bench_scene(path: Path, args, log) -> dict:
         out["notes"].append(f"optiland skipped: design is not the reference triplet ({why})")
     else:
         try:
-            import optiland  # noqa: F401
-            from optiland.rays import RealRays
+            import optiland
 
             optiland_lens = build_optiland_triplet(system, lam, args.optiland_glass)
-            out["optiland"] = {"version": getattr(__import__("optiland"), "__version__", "?"),
+            out["optiland"] = {"version": getattr(optiland, "__version__", "?"),
                                "glass": args.optiland_glass, "apertures": "RadialAperture(semi_diameter)",
                                "backend": "numpy float64", "call": "lens.surfaces.trace(rays, record=False)"}
         except ImportError as e:
@@ -386,7 +400,8 @@ def bench_scene(path: Path, args, log) -> dict:
                 rec = {"rays": n, "timed_rays": n, "first_call_s": first["time"],
                        "first_call_kernels": first["kernels"], "best_s": best,
                        "repeats_s": times, "rays_per_s": n / best,
-                       "kernels_per_call": r["kernels"], "peak_rss_mb": _rss_mb()}
+                       "kernels_per_call": r["kernels"], "peak_rss_mb": _rss_mb(),
+                       "cpu_per_wall": _LAST_CPU[0]}
                 if mode == "fwd":
                     o = r["result"]
                     st = np.asarray(o.status).astype(np.int64)
@@ -407,7 +422,7 @@ def bench_scene(path: Path, args, log) -> dict:
                 res[key] = rec
                 del r
                 log(f"    {key:18s} first {first['time']:7.3f} s  best {best:8.4f} s  "
-                    f"{n / best / 1e6:8.3f} M rays/s  peak RSS {rec['peak_rss_mb'] or 0:7.0f} MB")
+                    f"{n / best / 1e6:8.3f} M rays/s  peak RSS {rec['peak_rss_mb'] or 0:7.0f} MB  cpu/wall {rec['cpu_per_wall']:.2f}")
             del case
         dr.flush_malloc_cache()
 
@@ -436,7 +451,7 @@ def bench_scene(path: Path, args, log) -> dict:
                          f"best_s_scaled = best_s * {n}/{m}") if m < n else "",
                 "warmup_rays": min(m, 10000), "first_call_s": first, "best_s": best,
                 "best_s_scaled": best * n / m, "repeats_s": times, "rays_per_s": m / best,
-                "peak_rss_mb": _rss_mb(), "threads": 1,
+                "peak_rss_mb": _rss_mb(), "threads": 1, "cpu_per_wall": _LAST_CPU[0],
             }
             p_np, d_np, st_np, opl_np = r
             p64, st64, opl64, d64 = (a[:m] for a in lf64)
@@ -483,6 +498,7 @@ def bench_scene(path: Path, args, log) -> dict:
                 + "; RealRays construction excluded from the timing",
                 "warmup_rays": wm, "first_call_s": first, "best_s": best, "best_s_scaled": best * n / m,
                 "repeats_s": times, "rays_per_s": m / best, "peak_rss_mb": _rss_mb(),
+                "cpu_per_wall": _LAST_CPU[0],
             }
             p_o = np.stack([np.asarray(rays.x), np.asarray(rays.y), np.asarray(rays.z)], axis=1)
             inten = np.asarray(rays.i)
@@ -512,7 +528,8 @@ def bench_scene(path: Path, args, log) -> dict:
         for tag in ("f64", "f32"):
             ratios[f"fwdrev_over_fwd_time_{tag}"] = res[f"lfsim_{tag}_fwdrev"]["best_s"] / res[f"lfsim_{tag}_fwd"]["best_s"]
         ratios["lfsim_f32_over_f64_fwd"] = thr("lfsim_f32_fwd") / thr("lfsim_f64_fwd")
-        out["sizes"][str(n)] = {"results": res, "ratios": ratios, "agreement": agree}
+        out["sizes"][str(n)] = {"results": res, "ratios": ratios, "agreement": agree,
+                                "loadavg_after": _loadavg()}
     return out
 
 
@@ -527,15 +544,19 @@ def _timed_lfsim(fn, repeats):
     first_k = _kernel_summary(dr.kernel_history())
     del r
     times = []
+    cpu = []
     r = None
     for _ in range(repeats):
         r = None
         gc.collect()
         dr.kernel_history_clear()
+        c0 = time.process_time()
         t0 = time.perf_counter()
         r = fn()
         times.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
         k = _kernel_summary(dr.kernel_history())
+    _LAST_CPU[0] = cpu[int(np.argmin(times))] / min(times)
     return ({"time": first, "kernels": first_k}, min(times), times,
             {"result": r, "kernels": {"launched": k["kernels_launched"], "execution_s": k["execution_s"]}})
 
@@ -575,6 +596,19 @@ def markdown(report: dict) -> str:
             row += [_fmt(rt.get("lfsim_f64_fwd_over_numpy")), _fmt(rt.get("lfsim_f64_fwd_over_optiland")),
                     _fmt(rt.get("fwdrev_over_fwd_time_f64")), _fmt(rt.get("fwdrev_over_fwd_time_f32"))]
             lines.append("| " + " | ".join(row) + " |")
+    # CPU use of the lfsim calls at each scene's largest N (small N are dominated by
+    # single-threaded Python tracing of the IR).
+    cpw = [r["cpu_per_wall"] for sc in report["scenes"] if sc.get("sizes")
+           for k, r in list(sc["sizes"].values())[-1]["results"].items()
+           if k.startswith("lfsim") and r.get("cpu_per_wall") is not None]
+    if cpw:
+        thr = report["environment"].get("drjit_threads")
+        lines.append("")
+        lines.append(f"At the largest N, lfsim calls used {min(cpw):.2f}-{max(cpw):.2f} CPU-s per wall-s "
+                     f"(Dr.Jit threads: {thr}; NumPy and optiland run on one core)"
+                     + ("; values well below the thread count mean other processes took CPU time"
+                        if thr and min(cpw) < 0.75 * thr and max(report["settings"]["sizes"]) >= 1_000_000
+                        else "") + ".")
     lines.append("")
     # First calls (compile) and agreement.
     lines.append("First call (s, includes IR tracing + kernel compile; compiled kernels in brackets), "
@@ -673,13 +707,14 @@ def main(argv=None) -> int:
         if args.threads:
             backend.configure(threads=args.threads)
         device = backend.init()
+        dr.set_flag(dr.JitFlag.KernelHistory, True)
         try:
             import optiland
 
             optiland_version = getattr(optiland, "__version__", "installed")
-        except ImportError:
+        except ImportError as e:
             optiland_version = None
-            args.no_optiland = True
+            args.optiland_unavailable = f"optiland not installed ({e}); column skipped"
 
         report = {
             "benchmark": "trace_throughput",
@@ -704,6 +739,10 @@ def main(argv=None) -> int:
             },
             "scenes": [],
         }
+        report["loadavg_start"] = _loadavg()
+        if report["loadavg_start"] and report["loadavg_start"][0] > 0.5:
+            log(f"WARNING: 1-min load average {report['loadavg_start'][0]:.2f} at start: other processes "
+                "compete for the CPU and timings will be noisy")
         log(f"lfsim {lfsim.__version__} on {device} ({report['environment']['drjit_threads']} threads), "
             f"sizes {args.sizes}")
         for sc in args.scenes:
@@ -721,6 +760,7 @@ def main(argv=None) -> int:
             res["wall_s"] = time.perf_counter() - t_sc
             report["scenes"].append(res)
         _rss_mb()
+        report["loadavg_end"] = _loadavg()
         report["max_rss_mb_process"] = _MAX_RSS_MB[0]  # max of the per-case peaks (VmHWM)
         report["total_wall_s"] = time.perf_counter() - t_start
         table = markdown(report)

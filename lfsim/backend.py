@@ -156,6 +156,19 @@ def types(precision: str = "float64") -> SimpleNamespace:
     return _types_cache[key]
 
 
+def from_numpy(Type, a):
+    """A Dr.Jit array of ``Type`` holding a copy of the numpy array ``a``.
+
+    Dr.Jit maps numpy buffers without copying, and a kernel that reads such a
+    buffer has the buffer's alignment baked into its code, so the same trace
+    would recompile whenever numpy happens to allocate differently. Copying
+    into Dr.Jit's own (aligned) memory keeps kernels cache-stable.
+    """
+    import drjit as dr
+
+    return dr.copy(Type(np.ascontiguousarray(a)))
+
+
 def mitsuba_variant(spectral: bool = False) -> str:
     """Mitsuba variant matching the Dr.Jit back end (always differentiable)."""
     device = init()

@@ -68,12 +68,15 @@ def plot_layout(design, fo, path, rays_per_field: int = 7):
         if s.interaction == "break":
             continue
         R, o = frames[i]
-        h = s.semi_diameter or (s.aperture.extent() if s.aperture else None)
-        if h is None:
-            h = 0.5 * fo.entrance_pupil_diameter * 1.2 if i < len(design.surfaces) - 1 else None
-        if h is None:
+        ap = s.aperture
+        if ap is not None:  # the aperture's extent along local y
+            half = ap.radius if ap.kind == "circular" else ap.half_width[1]
+            lo, hi = ap.decenter[1] - half, ap.decenter[1] + half
+        elif i < len(design.surfaces) - 1:
+            lo, hi = -0.6 * fo.entrance_pupil_diameter, 0.6 * fo.entrance_pupil_diameter
+        else:
             continue
-        y = np.linspace(-h, h, 101)
+        y = np.linspace(lo, hi, 101)
         z = tracer.sag_numpy(i, np.zeros_like(y), y)
         pts = np.stack([np.zeros_like(y), y, z], axis=1) @ R.T + o
         style = dict(color="0.2", lw=1.2) if s.interaction != "none" else dict(color="0.5", lw=0.8, ls="--")

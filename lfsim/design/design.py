@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..backend import from_numpy
 from ..optics.prescription import System
 from .loader import load_system, system_from_dict
 
@@ -105,6 +106,10 @@ class Design:
         lam = self.system.primary_wavelength_nm if wavelength_nm is None else float(wavelength_nm)
         if not lam > 0:
             raise ValueError(f"wavelength_nm must be > 0, got {wavelength_nm!r}")
+        if len(o) == 0:
+            e3, e1 = np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
+            return TraceResult(e3, e3.copy(), e1, np.zeros(0), e1.copy(), np.zeros((0, 2), np.int64),
+                               np.zeros((len(self.surfaces), 0, 3)) if record else None)
         tr = self.tracer(precision)
         T = tr.T
         import drjit as dr
@@ -113,7 +118,7 @@ class Design:
 
         def arr3(a):
             a = a.astype(T.np_dtype)
-            return T.Array3(T.Float(a[:, 0]), T.Float(a[:, 1]), T.Float(a[:, 2]))
+            return T.Array3(*(from_numpy(T.Float, a[:, i]) for i in range(3)))
 
         lens = None
         if lenslet is not None:
@@ -122,7 +127,7 @@ class Design:
                 raise ValueError(f"lenslet must be an (N, 2) integer array, got {lz.shape} {lz.dtype}")
             if not self.system.arrays:
                 raise ValueError("lenslet given but the design has no lenslet array")
-            lens = (T.Int32(lz[:, 0].astype(np.int32)), T.Int32(lz[:, 1].astype(np.int32)))
+            lens = (from_numpy(T.Int32, lz[:, 0].astype(np.int32)), from_numpy(T.Int32, lz[:, 1].astype(np.int32)))
         with dr.suspend_grad():
             out = tr.trace(tr.params(lam), RayState(arr3(o), arr3(d)), lenslet=lens, record=record)
             dr.eval(out.p, out.d, out.status, out.opl, out.failed_at, out.lenslet_m, out.lenslet_n)

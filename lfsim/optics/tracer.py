@@ -101,6 +101,9 @@ class SequentialTracer:
         self.newton_tol = newton_tol if newton_tol is not None else (
             1e-12 if precision == "float64" else 1e-5)
         self.newton_max_iter = int(newton_max_iter)
+        #: Relative slack of aperture and lenslet-cell edges, so a ray aimed
+        #: exactly at a rim is not vignetted by rounding (1 nm per metre in float64).
+        self.edge_tol = 1e-12 if precision == "float64" else 1e-6
         self.groups = system.array_groups()
         self._group_first = {idx[0]: g for g, idx in self.groups.items()}
         self._index_param = self._media_params()
@@ -119,7 +122,7 @@ class SequentialTracer:
         if values.size % self.n_params:
             raise ValueError(
                 f"parameter array of length {values.size} is not a multiple of {self.n_params}")
-        return self.T.Float(values.astype(self.T.np_dtype))
+        return backend.from_numpy(self.T.Float, values.astype(self.T.np_dtype))
 
     def _media_params(self) -> list[str]:
         """Name of the index parameter of the medium *before* each surface."""
@@ -196,6 +199,8 @@ class SequentialTracer:
         """
         T = self.T
         n = dr.width(rays.p)
+        if n == 0:
+            raise ValueError("no rays to trace")
         if block is None:
             block = dr.opaque(T.UInt32, 0, n)
         base = block * self.n_params
@@ -283,13 +288,16 @@ class SequentialTracer:
             ap = s.aperture
             if ap is not None:
                 ax, ay = hit.x - ap.decenter[0], hit.y - ap.decenter[1]
+                slack = 1.0 + self.edge_tol
                 if ap.kind == "circular":
-                    outside = dr.fma(ax, ax, ay * ay) > ap.radius * ap.radius
+                    outside = dr.fma(ax, ax, ay * ay) > (ap.radius * slack) ** 2
                 else:
-                    outside = (dr.abs(ax) > ap.half_width[0]) | (dr.abs(ay) > ap.half_width[1])
+                    outside = ((dr.abs(ax) > ap.half_width[0] * slack)
+                               | (dr.abs(ay) > ap.half_width[1] * slack))
                 fail(outside, Status.VIGNETTED, i)
             if offset is not None:
-                crossed = (dr.abs(hit.x) > 0.5 * px) | (dr.abs(hit.y) > 0.5 * py)
+                half = 0.5 * (1.0 + self.edge_tol)
+                crossed = (dr.abs(hit.x) > half * px) | (dr.abs(hit.y) > half * py)
                 fail(crossed, Status.WRONG_LENSLET, i)
 
             # Interaction.
