@@ -56,15 +56,9 @@ def trace_np(tracer, o, d, values=None, wavelength_nm=None):
     """Trace numpy rays with a SequentialTracer; numpy results (p, d, status, opl)."""
     import drjit as dr
 
-    from lfsim.optics.tracer import RayState
-
-    T = tracer.T
-    o = np.asarray(o, dtype=T.np_dtype)
-    d = np.asarray(d, dtype=T.np_dtype)
     P = tracer.params(wavelength_nm, values=values)
     with dr.suspend_grad():
-        out = tracer.trace(P, RayState(T.Array3(*(T.Float(o[:, i]) for i in range(3))),
-                                       T.Array3(*(T.Float(d[:, i]) for i in range(3)))))
+        out = tracer.trace(P, tracer.rays(o, d))
     p = np.stack([np.asarray(out.p[i]) for i in range(3)], axis=1)
     dd = np.stack([np.asarray(out.d[i]) for i in range(3)], axis=1)
     return p, dd, np.asarray(out.status), np.asarray(out.opl)

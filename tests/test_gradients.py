@@ -48,7 +48,7 @@ tilt = [1.0, 0.0, 0.0]
 """
 
 
-def _bundle(T, n=9):
+def _bundle(tracer, n=9):
     g = np.linspace(-1.6, 1.6, n)
     X, Y = np.meshgrid(g, g)
     pts = np.stack([X.ravel(), Y.ravel()], 1)
@@ -62,8 +62,7 @@ def _bundle(T, n=9):
     # Two rays that fail (outside the clear aperture, and missing entirely).
     o = np.concatenate([o, [[0.0, 9.0, -2.0], [0.0, 0.0, -2.0]]])
     d = np.concatenate([d, [[0.0, 0.0, 1.0], [0.0, 1.0, 1e-3]]])
-    return RayState(T.Array3(*(T.Float(o[:, i]) for i in range(3))),
-                    T.Array3(*(T.Float(d[:, i]) for i in range(3))))
+    return tracer.rays(o, d)
 
 
 def spot_merit(tracer, P, rays):
@@ -90,7 +89,7 @@ def freeform(tmp_path_factory):
 def test_reverse_gradients_match_central_differences(freeform):
     tr = freeform.tracer("float64")
     T = tr.T
-    rays = _bundle(T)
+    rays = _bundle(tr)
     v0 = np.asarray(freeform.system.parameter_values(587.5618))
     P = tr.params(values=v0)
     dr.enable_grad(P)
@@ -131,8 +130,7 @@ def test_gradients_finite_for_failing_rays(freeform):
     T = tr.T
     o = np.array([[0.0, 50.0, -2.0], [0.0, 0.0, -2.0], [0.0, 7.99, -2.0]])
     d = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [0.0, 0.3, 1.0]])
-    rays = RayState(T.Array3(*(T.Float(o[:, i]) for i in range(3))),
-                    T.Array3(*(T.Float(d[:, i]) for i in range(3))))
+    rays = tr.rays(o, d)
     P = tr.params()
     dr.enable_grad(P)
     out = tr.trace(P, rays)
@@ -150,7 +148,7 @@ def test_batched_parameter_blocks_give_the_same_rays(freeform):
     v0 = np.asarray(freeform.system.parameter_values(587.5618))
     v1 = v0.copy()
     v1[freeform.parameter_names().index("B.x0y2")] += 1e-3
-    rays = _bundle(T, 5)
+    rays = _bundle(tr, 5)
     n = dr.width(rays.p)
     both = RayState(T.Array3(*(dr.concat([rays.p[i], rays.p[i]]) for i in range(3))),
                     T.Array3(*(dr.concat([rays.d[i], rays.d[i]]) for i in range(3))))
@@ -167,7 +165,7 @@ def test_batched_parameter_blocks_give_the_same_rays(freeform):
 def test_batched_forward_jacobian_matches_central_differences(freeform):
     tr = freeform.tracer("float64")
     T = tr.T
-    rays = _bundle(T, 4)
+    rays = _bundle(tr, 4)
     v0 = np.asarray(freeform.system.parameter_values(587.5618))
     names = ["A.curvature", "A.A4", "B.x2y1", "B.tilt_x", "B.decenter_y", "C.thickness", "A.index",
              "D.tilt_y", "image.tilt_x"]

@@ -114,11 +114,6 @@ class Design:
         T = tr.T
         import drjit as dr
 
-        from ..optics.tracer import RayState
-
-        def arr3(a):
-            a = a.astype(T.np_dtype)
-            return T.Array3(*(from_numpy(T.Float, a[:, i]) for i in range(3)))
 
         lens = None
         if lenslet is not None:
@@ -129,7 +124,7 @@ class Design:
                 raise ValueError("lenslet given but the design has no lenslet array")
             lens = (from_numpy(T.Int32, lz[:, 0].astype(np.int32)), from_numpy(T.Int32, lz[:, 1].astype(np.int32)))
         with dr.suspend_grad():
-            out = tr.trace(tr.params(lam), RayState(arr3(o), arr3(d)), lenslet=lens, record=record)
+            out = tr.trace(tr.params(lam), tr.rays(o, d), lenslet=lens, record=record)
             dr.eval(out.p, out.d, out.status, out.opl, out.failed_at, out.lenslet_m, out.lenslet_n)
 
         def np3(v):

@@ -191,11 +191,8 @@ def find_axis_ray(tracer, P_np, stop: int, n_obj: float, object_distance: float)
         else:
             o = np.array([[0.0, 0.0, -object_distance]])
             d = np.array([[u[0], u[1], 1.0]])
-        o, d = o.astype(T.np_dtype), d.astype(T.np_dtype)
-        rays = RayState(T.Array3(T.Float(o[:, 0]), T.Float(o[:, 1]), T.Float(o[:, 2])),
-                        T.Array3(T.Float(d[:, 0]), T.Float(d[:, 1]), T.Float(d[:, 2])))
         with dr.suspend_grad():
-            out = tracer.trace(P, rays, record=True)
+            out = tracer.trace(P, tracer.rays(o, d), record=True)
         p_stop = np.array([float(out.path[stop][0][i][0]) for i in range(3)])
         local = R_stop.T @ (p_stop - o_stop)
         return local[:2], int(out.status[0]), o[0], d[0] / np.linalg.norm(d[0])

@@ -153,15 +153,8 @@ def intersect(p, d, s: Shape, T, newton: bool, tol: float, max_iter: int):
             return (it < max_iter) & ~done
 
         def body(t, it, done):
-            q = dr.fma(dd_, t, pd_)
-            z, zx, zy, inside = sag(q.x, q.y, sd)
-            f = q.z - z
-            fp = dd_.z - zx * dd_.x - zy * dd_.y
-            good = inside & (dr.abs(fp) > 1e-12)
-            step = dr.select(good, f / dr.select(good, fp, 1.0), 0.0)
-            t = t - step
-            done = (dr.abs(step) <= tol) | ~good
-            return t, it + 1, done
+            step, good = _newton_step(pd_, dd_, t, sd)
+            return t - step, it + 1, (dr.abs(step) <= tol) | ~good
 
         t_conv, _, _ = dr.while_loop(
             state=(T.Float(t_start), dr.zeros(T.UInt32, dr.width(t_start)), T.Bool(False)),
@@ -172,12 +165,16 @@ def intersect(p, d, s: Shape, T, newton: bool, tol: float, max_iter: int):
         )
 
     # One attached Newton step: exact value, implicit gradient.
-    q = dr.fma(d, t_conv, p)
+    step, good = _newton_step(p, d, t_conv, s)
+    converged = good & (dr.abs(dr.detach(step)) <= 10.0 * tol)
+    return t_conv - step, good, converged
+
+
+def _newton_step(p, d, t, s: Shape):
+    """Newton step f/f' for f(t) = z(t) − sag(x(t), y(t)), and a validity mask."""
+    q = dr.fma(d, t, p)
     z, zx, zy, inside = sag(q.x, q.y, s)
     f = q.z - z
     fp = d.z - zx * d.x - zy * d.y
     good = inside & (dr.abs(fp) > 1e-12)
-    step = dr.select(good, f / dr.select(good, fp, 1.0), 0.0)
-    t_new = t_conv - step
-    converged = good & (dr.abs(dr.detach(step)) <= 10.0 * tol)
-    return t_new, good, converged
+    return dr.select(good, f / dr.select(good, fp, 1.0), 0.0), good

@@ -108,6 +108,14 @@ class SequentialTracer:
         self._group_first = {idx[0]: g for g, idx in self.groups.items()}
         self._index_param = self._media_params()
 
+    def rays(self, origins, directions) -> RayState:
+        """A :class:`RayState` from numpy (N, 3) origins and directions (copied)."""
+        T = self.T
+        o = np.asarray(origins, dtype=T.np_dtype).reshape(-1, 3)
+        d = np.asarray(directions, dtype=T.np_dtype).reshape(-1, 3)
+        return RayState(T.Array3(*(backend.from_numpy(T.Float, o[:, i]) for i in range(3))),
+                        T.Array3(*(backend.from_numpy(T.Float, d[:, i]) for i in range(3))))
+
     # ----------------------------------------------------------- parameters
     def params(self, wavelength_nm: float | None = None, values=None):
         """Packed parameter array (one block) at ``wavelength_nm``.
