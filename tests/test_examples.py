@@ -99,3 +99,16 @@ def test_zero_rays_and_rim_rays(scenes):
     for f in d.system.fields:
         o, dirs = field_rays(d.system, fo, f, ring)
         assert np.all(d.trace(o, dirs).status == 0)
+
+
+@pytest.mark.parametrize("scene", ["cooke_triplet", "asphere_singlet", "freeform_prism"])
+def test_float32_agrees_with_float64(scenes, scene):
+    d = lfsim.load(scenes / f"{scene}.toml")
+    fo = d.first_order()
+    rays = [field_rays(d.system, fo, f, pupil_grid(6)) for f in d.system.fields]
+    o = np.concatenate([r[0] for r in rays])
+    dirs = np.concatenate([r[1] for r in rays])
+    a, b = d.trace(o, dirs), d.trace(o, dirs, precision="float32")
+    assert np.array_equal(a.status, b.status)
+    ok = a.status == 0
+    assert np.max(np.abs(a.positions[ok] - b.positions[ok])) < 1e-4  # 0.1 µm (pixels are µm-sized)
