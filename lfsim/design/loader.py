@@ -17,6 +17,7 @@ Schema (units: mm, degrees, nm)::
     # asphere = { A4 = ..., ..., A16 = ... }
     # xy = { x2y0 = ..., x0y2 = ..., ... }  with norm_radius = R (total order ≤ 10)
     # mirror = true | tir = true | dummy = true | type = "coordinate_break"
+    # type = "paraxial" with focal_length = f: an ideal thin lens (plane, same medium)
     # aperture = { type = "circular", radius = r, decenter = [x, y] }
     #          | { type = "rectangular", half_width = [hx, hy], decenter = [x, y] }
     # stop = true, decenter = [dx, dy], tilt = [tx, ty, tz], return_axis = false,
@@ -53,9 +54,9 @@ SURFACE_KEYS = {
     "name", "type", "radius", "curvature", "conic", "asphere", "xy", "norm_radius",
     "thickness", "material", "mirror", "tir", "dummy", "semi_diameter", "aperture",
     "stop", "decenter", "tilt", "return_axis", "global_position", "same_as", "array",
-    "comment",
+    "comment", "focal_length",
 }
-SURFACE_TYPES = ("standard", "even_asphere", "xy_polynomial", "coordinate_break")
+SURFACE_TYPES = ("standard", "even_asphere", "xy_polynomial", "coordinate_break", "paraxial")
 TOP_KEYS = {"name", "description", "system", "object", "surfaces", "arrays", "ini", "render", "optimize"}
 
 
@@ -179,6 +180,20 @@ def _surface(ctx: _Ctx, raw, i: int, names: dict, arrays: dict, n_surf: int) -> 
                           "a coordinate break takes only decenter, tilt, thickness, return_axis")
         s.interaction = "break"
         s.return_axis = ctx.boolean(raw, "return_axis", path, False)
+    if stype == "paraxial":
+        bad = {"radius", "curvature", "conic", "asphere", "xy", "norm_radius", "material", "mirror",
+               "tir", "dummy", "same_as"} & set(raw)
+        if bad:
+            k = sorted(bad)[0]
+            raise ctx.err(f"{path}.{k}", raw[k], "a paraxial (ideal) lens is a plane in one medium: "
+                          "give focal_length, thickness, apertures and placement only")
+        f = ctx.number(raw, "focal_length", path, allow_inf=True)
+        if f == 0:
+            raise ctx.err(f"{path}.focal_length", f, "must be nonzero (inf for no power)")
+        s.interaction = "paraxial"
+        s.power = 0.0 if math.isinf(f) else 1.0 / f
+    elif "focal_length" in raw:
+        raise ctx.err(f"{path}.focal_length", raw["focal_length"], 'only for type = "paraxial"')
     # Shape.
     if "radius" in raw and "curvature" in raw:
         raise ctx.err(f"{path}.curvature", raw["curvature"], "give radius or curvature, not both")
@@ -227,7 +242,8 @@ def _surface(ctx: _Ctx, raw, i: int, names: dict, arrays: dict, n_surf: int) -> 
         s.interaction = {"mirror": "reflect", "tir": "tir", "dummy": "none"}[flags[0]]
     if s.interaction == "reflect" and "material" in raw:
         raise ctx.err(f"{path}.material", raw["material"], "a mirror keeps the medium; remove material")
-    s.material = _material(ctx, raw, "material", path, AIR)
+    if s.interaction != "paraxial":
+        s.material = _material(ctx, raw, "material", path, AIR)
 
     # Apertures.
     if "semi_diameter" in raw:

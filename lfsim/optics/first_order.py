@@ -93,6 +93,8 @@ def paraxial_matrices(system: System, wavelength_nm: float):
         elif s.interaction in ("reflect", "tir"):
             M = np.array([[1.0, 0.0], [2.0 * n * s.curvature, 1.0]]) @ M
             n = -n
+        elif s.interaction == "paraxial":
+            M = np.array([[1.0, 0.0], [-math.copysign(s.power, n), 1.0]]) @ M
         if i == stop:
             M_front = M.copy()
     return M_front, M, n_obj, n

@@ -41,8 +41,9 @@ XY_MAX_ORDER = 10
 #: How a surface acts on a ray: refract into ``material``; reflect (mirror);
 #: reflect by total internal reflection against ``material`` (failing rays are
 #: flagged); "none" (a dummy surface: intersected, direction unchanged);
-#: "break" (a coordinate break: only changes the frame, not intersected).
-INTERACTIONS = ("refract", "reflect", "tir", "none", "break")
+#: "break" (a coordinate break: only changes the frame, not intersected);
+#: "paraxial" (an ideal thin lens of power ``power`` on a plane, same medium).
+INTERACTIONS = ("refract", "reflect", "tir", "none", "break", "paraxial")
 
 
 @dataclass
@@ -83,6 +84,7 @@ class Surface:
     global_position: tuple[float, float, float] | None = None
     same_as: int | None = None  # index of an earlier surface whose frame and shape are reused
     array: str | None = None  # lenslet-array group name
+    power: float = 0.0  # ideal-lens power (1/mm) of a "paraxial" surface
 
     @property
     def is_plane(self) -> bool:
@@ -171,6 +173,8 @@ class System:
                 ]
                 if s.global_position is not None:
                     rows += [(f"{s.name}.position_{a}", v, "mm") for a, v in zip("xyz", s.global_position)]
+            if s.interaction == "paraxial":
+                rows.append((f"{s.name}.power", s.power, "1/mm"))
             rows.append((f"{s.name}.thickness", s.thickness, "mm"))
             if s.interaction in ("refract", "tir"):
                 rows.append((f"{s.name}.index", float("nan"), ""))

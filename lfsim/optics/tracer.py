@@ -75,6 +75,31 @@ def _rot_xyz(ax, ay, az, T):
     return Rx @ Ry @ Rz
 
 
+def _ideal_lens(d, h, phi, n, T):
+    """Ideal thin lens of power φ (1/mm) in a medium of index n, at local hit h.
+
+    Slopes along the propagation direction map as ``tan θ' = tan θ − h·φ/n``
+    (x and y), which images every conjugate perfectly (the lens-design
+    programs' paraxial surface). The optical path it adds makes every ray of
+    an incoming plane wave equal in path to its focal point F = f·g
+    (g = d/|d_z|, f = 1/φ; virtual F for φ < 0):
+    ``ΔOPL = n·((2 g·h − φ|h|²)/(|g| + |g − φh|) − d·h)``, a cancellation-free
+    form of n·(±(|F| − |F − h|) − d·h) that tends to 0 as φ → 0.
+    """
+    adz = dr.abs(d.z)
+    inv = 1.0 / dr.select(adz > 0.0, adz, 1.0)
+    gx, gy = d.x * inv, d.y * inv
+    tx = gx - h.x * phi / n
+    ty = gy - h.y * phi / n
+    d_new = dr.normalize(T.Array3(tx, ty, dr.sign(d.z)))
+    g_dot_h = gx * h.x + gy * h.y
+    h2 = h.x * h.x + h.y * h.y
+    g_len = dr.sqrt(gx * gx + gy * gy + 1.0)
+    gm_len = dr.sqrt(dr.square(gx - phi * h.x) + dr.square(gy - phi * h.y) + 1.0)
+    dopl = n * ((2.0 * g_dot_h - phi * h2) / (g_len + gm_len) - (d.x * h.x + d.y * h.y))
+    return d_new, dopl
+
+
 class SequentialTracer:
     """Compile a :class:`System` for tracing at one precision.
 
@@ -333,11 +358,15 @@ class SequentialTracer:
                         fail(can_refract, Status.NO_TIR, i)
                         d_new = reflected
 
+            elif s.interaction == "paraxial":
+                d_new, dopl = _ideal_lens(dl, hit, pr(f"{s.name}.power"), n1, T)
+
             alive = status == 0
             p_new = R @ (hit + offset if offset is not None else hit) + o
             p = dr.select(alive, p_new, p)
             d = dr.select(alive, dr.normalize(R @ d_new), d)
-            opl = dr.select(alive, opl + n1 * t, opl)
+            step_opl = n1 * t if s.interaction != "paraxial" else n1 * t + dopl
+            opl = dr.select(alive, opl + step_opl, opl)
             if record:
                 path.append((p, d))
         return TraceOutput(p, d, status, opl, failed_at, lens_m, lens_n, path)
