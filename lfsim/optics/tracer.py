@@ -129,6 +129,9 @@ class SequentialTracer:
         #: Relative slack of aperture and lenslet-cell edges, so a ray aimed
         #: exactly at a rim is not vignetted by rounding (1 nm per metre in float64).
         self.edge_tol = 1e-12 if precision == "float64" else 1e-6
+        #: How the reverse pass accumulates per-ray parameter adjoints
+        #: (the scatter-add that is the derivative of every per-ray gather).
+        self.reduce_mode = dr.ReduceMode.Auto
         self.groups = system.array_groups()
         self._group_first = {idx[0]: g for g, idx in self.groups.items()}
         self._index_param = self._media_params()
@@ -240,7 +243,7 @@ class SequentialTracer:
         Rs, os_ = self.frames(P)
 
         def pr(name):
-            return dr.gather(T.Float, P, base + self.index[name])
+            return dr.gather(T.Float, P, base + self.index[name], mode=self.reduce_mode)
 
         p = T.Array3(rays.p)
         d = dr.normalize(T.Array3(rays.d))
@@ -259,19 +262,22 @@ class SequentialTracer:
             status = dr.select(new, int(code), status)
             failed_at = dr.select(new, int(i), failed_at)
 
+        # Rays are carried in the local frame of the last surface met, so each
+        # surface costs one frame change: x_i = A_i (x_prev − b_i).
+        A, b = self._relative_frames(Rs, os_)
+        last = None
         for i, s in enumerate(self.system.surfaces):
             if s.interaction == "break":
                 if record:
-                    path.append((p, d))
+                    path.append(self._to_global(p, d, Rs, os_, last, block))
                 continue
             # Per-ray gathers (also for a single block): the reverse pass then
             # scatter-adds into the frame arrays inside one kernel instead of
             # launching a reduction per broadcast scalar.
-            R = dr.gather(T.Matrix3, Rs[i], block)
-            o = dr.gather(T.Array3, os_[i], block)
-            Rt = R.T
-            pl = Rt @ (p - o)
-            dl = Rt @ d
+            Ai = dr.gather(T.Matrix3, A[i], block, mode=self.reduce_mode)
+            bi = dr.gather(T.Array3, b[i], block, mode=self.reduce_mode)
+            pl = Ai @ (p - bi)
+            dl = Ai @ d
 
             # Lenslet-array membership: pick the cell at the group's first surface.
             offset = None
@@ -362,14 +368,41 @@ class SequentialTracer:
                 d_new, dopl = _ideal_lens(dl, hit, pr(f"{s.name}.power"), n1, T)
 
             alive = status == 0
-            p_new = R @ (hit + offset if offset is not None else hit) + o
-            p = dr.select(alive, p_new, p)
-            d = dr.select(alive, dr.normalize(R @ d_new), d)
+            # Failed rays keep their last valid state (re-expressed in this frame).
+            p = dr.select(alive, hit + offset if offset is not None else hit, pl + offset if offset is not None else pl)
+            d = dr.select(alive, d_new, dl)
             step_opl = n1 * t if s.interaction != "paraxial" else n1 * t + dopl
             opl = dr.select(alive, opl + step_opl, opl)
+            last = i
             if record:
-                path.append((p, d))
+                path.append(self._to_global(p, d, Rs, os_, last, block))
+        p, d = self._to_global(p, d, Rs, os_, last, block)
         return TraceOutput(p, d, status, opl, failed_at, lens_m, lens_n, path)
+
+    def _relative_frames(self, Rs, os_):
+        """Per block: A_i, b_i with x_i = A_i (x_prev − b_i), x_prev in the frame
+        of the previous (non-break) surface, or global before the first."""
+        A, b = {}, {}
+        prev = None
+        for i, s in enumerate(self.system.surfaces):
+            if s.interaction == "break":
+                continue
+            if prev is None:
+                A[i], b[i] = Rs[i].T, os_[i]
+            else:
+                A[i] = Rs[i].T @ Rs[prev]
+                b[i] = Rs[prev].T @ (os_[i] - os_[prev])
+            prev = i
+        return A, b
+
+    def _to_global(self, p, d, Rs, os_, i, block):
+        """Rays in surface i's local frame → global frame (i None: already global)."""
+        if i is None:
+            return p, d
+        T = self.T
+        R = dr.gather(T.Matrix3, Rs[i], block, mode=self.reduce_mode)
+        o = dr.gather(T.Array3, os_[i], block, mode=self.reduce_mode)
+        return R @ p + o, R @ d
 
     # ------------------------------------------------------------ jacobian
     def jacobian(self, values, rays: RayState, names: list[str], outputs=None):
