@@ -26,11 +26,18 @@ the local axis)::
   Newton's method from the conic root (the vertex plane if the conic is
   missed), tolerance 1e-12 mm on the step, at most 16 steps, then one more
   step whose size (≤ 10·tol) decides convergence.
+  The conic's domain is 1 − (1+k) c² r² > 0 (the rim of a hemisphere, with
+  infinite slope, is outside); rays with |d_z| ≤ 1e-9 in the local frame are
+  solved from where they are instead of from the vertex plane.
 * Interactions: refraction (vector Snell's law, failing rays → TIR),
   reflection (mirror), total internal reflection against the surface's
   material (refraction possible → NO_TIR), "none" (dummy), "break"
-  (coordinate break, not intersected).
-* Apertures: circular or rectangular in local (x, y), with decenter.
+  (coordinate break, not intersected), "paraxial" (ideal thin lens of power
+  φ on a plane in one medium of index n: slopes map as
+  tan θ' = tan θ − h·φ/n in x and y, and the path gains
+  n·((2 g·h − φ|h|²)/(|g| + |g − φh|) − d·h) with g = d/|d_z|).
+* Apertures: circular or rectangular in local (x, y), with decenter; edges
+  have a relative slack of 1e-12 (a ray aimed exactly at a rim passes).
 * Status codes follow ``lfsim.optics.tracer.Status`` (duplicated below so this
   module does not import the Dr.Jit tracer); the first failure is kept and a
   failed ray keeps its last valid position, direction and OPL.
@@ -57,6 +64,11 @@ NO_TIR = 6
 
 NEWTON_TOL = 1e-12
 NEWTON_MAX_ITER = 16
+#: Smallest |d_z| (local) for which the ray is first moved to the vertex plane.
+DZ_MIN = 1e-9
+#: Relative slack of aperture edges.
+EDGE_TOL = 1e-12
+INTERACTIONS = ("refract", "reflect", "tir", "none", "break", "paraxial")
 
 
 # ----------------------------------------------------------------- frames
@@ -116,7 +128,7 @@ class _Shape:
             inside = np.ones(r2.shape, dtype=bool)
         else:
             arg = 1.0 - (1.0 + self.k) * c * c * r2
-            inside = arg >= 0.0
+            inside = arg > 0.0
             root = np.sqrt(np.where(inside, arg, 1.0))
             z = c * r2 / (1.0 + root)
             g = c / root  # (1/r) dz/dr of the conic
@@ -157,13 +169,14 @@ class _Shape:
 
 def _conic_hit(px, py, pz, dx, dy, dz, c, k):
     """Closed-form hit with the base conic on the vertex branch: (t, ok)."""
-    dz_ok = np.abs(dz) > 1e-300
+    if c == 0.0:  # plane z = 0
+        ok = dz != 0.0
+        return -pz / np.where(ok, dz, 1.0), ok
+    dz_ok = np.abs(dz) > DZ_MIN
     t0 = np.where(dz_ok, -pz / np.where(dz_ok, dz, 1.0), 0.0)
     x = px + t0 * dx
     y = py + t0 * dy
     z = np.where(dz_ok, 0.0, pz)
-    if c == 0.0:  # plane: the vertex-plane step is the answer (if it exists)
-        return t0, dz_ok
     e = 1.0 + k
     a = c * (dx * dx + dy * dy + e * dz * dz)
     b = c * (x * dx + y * dy + e * z * dz) - dz
@@ -205,6 +218,21 @@ def _newton(shape: _Shape, px, py, pz, dx, dy, dz, t_start):
     return t - step, good, good & (np.abs(step) <= 10.0 * NEWTON_TOL)
 
 
+def _ideal_lens(ux, uy, uz, hx, hy, phi, n):
+    """Ideal thin lens: new (unnormalized) direction and the added optical path."""
+    adz = np.abs(uz)
+    inv = 1.0 / np.where(adz > 0.0, adz, 1.0)
+    gx, gy = ux * inv, uy * inv  # slopes tan θx, tan θy
+    tx = gx - hx * (phi / n)
+    ty = gy - hy * (phi / n)
+    tz = np.where(uz >= 0.0, 1.0, -1.0)
+    g_len = np.sqrt(gx * gx + gy * gy + 1.0)
+    gm_len = np.sqrt((gx - phi * hx) ** 2 + (gy - phi * hy) ** 2 + 1.0)
+    dopl = n * ((2.0 * (gx * hx + gy * hy) - phi * (hx * hx + hy * hy)) / (g_len + gm_len)
+                - (ux * hx + uy * hy))
+    return tx, ty, tz, dopl
+
+
 # ------------------------------------------------------------------ trace
 def _is_identity(R):
     return np.array_equal(R, np.eye(3))
@@ -229,6 +257,9 @@ def trace_numpy(system: System, origins, directions, wavelength_nm: float | None
     """
     if system.arrays or any(s.array is not None for s in system.surfaces):
         raise NotImplementedError("the NumPy baseline tracer does not support lenslet arrays")
+    unknown = sorted({s.interaction for s in system.surfaces} - set(INTERACTIONS))
+    if unknown:
+        raise NotImplementedError(f"the NumPy baseline tracer does not support interaction(s) {unknown}")
     lam = system.primary_wavelength_nm if wavelength_nm is None else float(wavelength_nm)
     o = np.asarray(origins, dtype=np.float64)
     d = np.asarray(directions, dtype=np.float64)
@@ -272,7 +303,7 @@ def trace_numpy(system: System, origins, directions, wavelength_nm: float | None
 
         t, ok = _conic_hit(lx, ly, lz, ux, uy, uz, shape.c, shape.k)
         if shape.newton:
-            dz_ok = np.abs(uz) > 0.0
+            dz_ok = np.abs(uz) > DZ_MIN
             t_plane = np.where(dz_ok, -lz / np.where(dz_ok, uz, 1.0), 0.0)
             t, ok, conv = _newton(shape, lx, ly, lz, ux, uy, uz, np.where(ok, t, t_plane))
             fail(~ok, MISSED)
@@ -288,13 +319,16 @@ def trace_numpy(system: System, origins, directions, wavelength_nm: float | None
         if ap is not None:
             ax = hx - ap.decenter[0]
             ay = hy - ap.decenter[1]
+            slack = 1.0 + EDGE_TOL
             if ap.kind == "circular":
-                fail(ax * ax + ay * ay > ap.radius * ap.radius, VIGNETTED)
+                fail(ax * ax + ay * ay > (ap.radius * slack) ** 2, VIGNETTED)
             else:
-                fail((np.abs(ax) > ap.half_width[0]) | (np.abs(ay) > ap.half_width[1]), VIGNETTED)
+                fail((np.abs(ax) > ap.half_width[0] * slack) | (np.abs(ay) > ap.half_width[1] * slack),
+                     VIGNETTED)
 
         n1 = float(media[i].index(lam))
         nx, ny, nz = ux, uy, uz
+        extra_opl = 0.0
         if s.interaction in ("refract", "reflect", "tir"):
             _, zx, zy, _ = shape.sag(hx, hy)
             inv_len = 1.0 / np.sqrt(zx * zx + zy * zy + 1.0)
@@ -318,6 +352,8 @@ def trace_numpy(system: System, origins, directions, wavelength_nm: float | None
                     fail(1.0 - mu * mu * (1.0 - cos_i * cos_i) >= 0.0, NO_TIR)
                 two_c = 2.0 * cos_i
                 nx, ny, nz = ux - two_c * Nx, uy - two_c * Ny, uz - two_c * Nz
+        elif s.interaction == "paraxial":
+            nx, ny, nz, extra_opl = _ideal_lens(ux, uy, uz, hx, hy, float(s.power), n1)
 
         # Back to global; failed rays keep their last valid state.
         alive = status == OK
@@ -338,6 +374,6 @@ def trace_numpy(system: System, origins, directions, wavelength_nm: float | None
         dx = np.where(alive, ex * inv, dx)
         dy = np.where(alive, ey * inv, dy)
         dz = np.where(alive, ez * inv, dz)
-        opl = np.where(alive, opl + n1 * t, opl)
+        opl = np.where(alive, opl + n1 * t + extra_opl, opl)
 
     return np.stack([px, py, pz], axis=1), np.stack([dx, dy, dz], axis=1), status, opl

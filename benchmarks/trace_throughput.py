@@ -130,6 +130,20 @@ _MAX_RSS_MB = [0.0]
 _LAST_CPU = [float("nan")]  # process CPU time / wall time of the last best call
 
 
+def _git_state() -> dict | None:
+    """Commit and dirty files of the repository the benchmark runs from."""
+    import subprocess
+
+    try:
+        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+                              timeout=10, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT,
+                               capture_output=True, text=True, timeout=10, check=True).stdout.split("\n")
+        return {"commit": head, "modified": [ln[3:] for ln in dirty if ln.strip()]}
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
 def _loadavg():
     try:
         return list(os.getloadavg())
@@ -301,12 +315,25 @@ class LfsimCase:
         self.tr = design.tracer(precision)
         T = self.T = self.tr.T
         self.values = np.asarray(design.system.parameter_values(wavelength_nm), dtype=np.float64)
-        self.P = T.Float(self.values.astype(T.np_dtype))
-        self._np = [np.ascontiguousarray(c, dtype=T.np_dtype) for c in cols]  # keep aliases alive
-        ox, oy, oz, dx, dy, dz = (T.Float(c) for c in self._np)
+        self.P = self._array(self.values)
+        ox, oy, oz, dx, dy, dz = (self._array(c) for c in cols)
         self.rays = RayState(T.Array3(ox, oy, oz), T.Array3(dx, dy, dz))
         dr.eval(self.P, self.rays.p, self.rays.d)
         dr.sync_thread()
+
+    def _array(self, a):
+        """An evaluated Dr.Jit-owned copy of numpy ``a``.
+
+        Dr.Jit maps numpy buffers without copying (``dr.copy`` of such an array
+        keeps the numpy pointer too) and a kernel that reads a buffer bakes in
+        its alignment, so kernels reading numpy memory may recompile whenever
+        numpy allocates differently. ``x * opaque(1)`` (exact, keeps −0.0) is
+        evaluated into Dr.Jit's own aligned memory.
+        """
+        dr, T = self.dr, self.T
+        x = T.Float(np.ascontiguousarray(a, dtype=T.np_dtype)) * dr.opaque(T.Float, 1.0)
+        dr.eval(x)
+        return x
 
     def forward(self):
         dr = self.dr
@@ -317,8 +344,8 @@ class LfsimCase:
         return out
 
     def forward_reverse(self):
-        dr, T = self.dr, self.T
-        P = T.Float(self.values.astype(T.np_dtype))
+        dr = self.dr
+        P = self._array(self.values)
         dr.enable_grad(P)
         out = self.tr.trace(P, self.rays)
         ok = out.status == 0
@@ -374,7 +401,7 @@ def bench_scene(path: Path, args, log) -> dict:
             import optiland
 
             optiland_lens = build_optiland_triplet(system, lam, args.optiland_glass)
-            out["optiland"] = {"version": getattr(optiland, "__version__", "?"),
+            out["optiland"] = {"version": getattr(optiland, "__version__", None) or args.optiland_version,
                                "glass": args.optiland_glass, "apertures": "RadialAperture(semi_diameter)",
                                "backend": "numpy float64", "call": "lens.surfaces.trace(rays, record=False)"}
         except ImportError as e:
@@ -709,13 +736,19 @@ def main(argv=None) -> int:
         device = backend.init()
         dr.set_flag(dr.JitFlag.KernelHistory, True)
         try:
+            from importlib.metadata import version as _dist_version
+
             import optiland
 
-            optiland_version = getattr(optiland, "__version__", "installed")
+            try:
+                optiland_version = _dist_version("optiland")
+            except Exception:
+                optiland_version = getattr(optiland, "__version__", "installed")
         except ImportError as e:
             optiland_version = None
             args.optiland_unavailable = f"optiland not installed ({e}); column skipped"
 
+        args.optiland_version = optiland_version
         report = {
             "benchmark": "trace_throughput",
             "settings": {"sizes": args.sizes, "repeats": args.repeats, "numpy_max_rays": args.numpy_max_rays,
@@ -735,7 +768,7 @@ def main(argv=None) -> int:
                 "lfsim": lfsim.__version__, "optiland": optiland_version, "device": device,
                 "drjit_threads": dr.thread_count() if device == "cpu" else None,
                 "llvm": ".".join(map(str, dr.detail.llvm_version())) if device == "cpu" else None,
-                "numpy_threads": 1,
+                "numpy_threads": 1, "git": _git_state(),
             },
             "scenes": [],
         }

@@ -156,17 +156,22 @@ def types(precision: str = "float64") -> SimpleNamespace:
     return _types_cache[key]
 
 
-def from_numpy(Type, a):
-    """A Dr.Jit array of ``Type`` holding a copy of the numpy array ``a``.
+def from_numpy(Type, *arrays):
+    """Dr.Jit arrays of ``Type`` holding copies of numpy arrays (one kernel).
 
-    Dr.Jit maps numpy buffers without copying, and a kernel that reads such a
-    buffer has the buffer's alignment baked into its code, so the same trace
-    would recompile whenever numpy happens to allocate differently. Copying
-    into Dr.Jit's own (aligned) memory keeps kernels cache-stable.
+    Dr.Jit maps numpy buffers without copying (``dr.copy`` keeps the
+    mapping), and a kernel that reads such a buffer has the buffer's
+    alignment baked into its code, so the same trace would recompile whenever
+    numpy happens to allocate differently. Multiplying by an opaque 1 (exact)
+    and evaluating writes the values into Dr.Jit's own aligned memory, which
+    keeps kernels cache-stable. Returns one array, or a tuple for several.
     """
     import drjit as dr
 
-    return dr.copy(Type(np.ascontiguousarray(a)))
+    one = dr.opaque(Type, 1)
+    out = tuple(Type(np.ascontiguousarray(a)) * one for a in arrays)
+    dr.eval(*out)
+    return out[0] if len(out) == 1 else out
 
 
 def mitsuba_variant(spectral: bool = False) -> str:

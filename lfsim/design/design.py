@@ -122,7 +122,7 @@ class Design:
                 raise ValueError(f"lenslet must be an (N, 2) integer array, got {lz.shape} {lz.dtype}")
             if not self.system.arrays:
                 raise ValueError("lenslet given but the design has no lenslet array")
-            lens = (from_numpy(T.Int32, lz[:, 0].astype(np.int32)), from_numpy(T.Int32, lz[:, 1].astype(np.int32)))
+            lens = from_numpy(T.Int32, lz[:, 0].astype(np.int32), lz[:, 1].astype(np.int32))
         with dr.suspend_grad():
             out = tr.trace(tr.params(lam), tr.rays(o, d), lenslet=lens, record=record)
             dr.eval(out.p, out.d, out.status, out.opl, out.failed_at, out.lenslet_m, out.lenslet_n)

@@ -141,8 +141,8 @@ class SequentialTracer:
         T = self.T
         o = np.asarray(origins, dtype=T.np_dtype).reshape(-1, 3)
         d = np.asarray(directions, dtype=T.np_dtype).reshape(-1, 3)
-        return RayState(T.Array3(*(backend.from_numpy(T.Float, o[:, i]) for i in range(3))),
-                        T.Array3(*(backend.from_numpy(T.Float, d[:, i]) for i in range(3))))
+        c = backend.from_numpy(T.Float, *o.T, *d.T)
+        return RayState(T.Array3(*c[:3]), T.Array3(*c[3:]))
 
     # ----------------------------------------------------------- parameters
     def params(self, wavelength_nm: float | None = None, values=None):
