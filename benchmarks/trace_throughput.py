@@ -553,7 +553,10 @@ def bench_scene(path: Path, args, log) -> dict:
         if thr("optiland_f64_fwd"):
             ratios["lfsim_f64_fwd_over_optiland"] = thr("lfsim_f64_fwd") / thr("optiland_f64_fwd")
         for tag in ("f64", "f32"):
-            ratios[f"fwdrev_over_fwd_time_{tag}"] = res[f"lfsim_{tag}_fwdrev"]["best_s"] / res[f"lfsim_{tag}_fwd"]["best_s"]
+            t_fr, t_f = res[f"lfsim_{tag}_fwdrev"]["best_s"], res[f"lfsim_{tag}_fwd"]["best_s"]
+            ratios[f"fwdrev_over_fwd_time_{tag}"] = t_fr / t_f
+            # The reverse pass alone: (forward + reverse) minus one forward.
+            ratios[f"rev_over_fwd_time_{tag}"] = (t_fr - t_f) / t_f
         ratios["lfsim_f32_over_f64_fwd"] = thr("lfsim_f32_fwd") / thr("lfsim_f64_fwd")
         out["sizes"][str(n)] = {"results": res, "ratios": ratios, "agreement": agree,
                                 "loadavg_after": _loadavg()}
@@ -600,9 +603,11 @@ def _fmt(v, digits=3):
 def markdown(report: dict) -> str:
     lines = []
     head = ["scene", "N"] + [c[1] for c in COLUMNS] + [
-        "f64 fwd / numpy", "f64 fwd / optiland", "(fwd+rev)/fwd f64", "(fwd+rev)/fwd f32"]
+        "f64 fwd / numpy", "f64 fwd / optiland", "(fwd+rev)/fwd f64", "(fwd+rev)/fwd f32",
+        "rev/fwd f64", "rev/fwd f32"]
     lines.append("Throughput in M rays/s (best of %d; * = baseline timed on a %s-ray prefix);"
-                 " ratios: speed-up (throughput ratio) and gradient cost (time ratio)."
+                 " ratios: speed-up (throughput ratio) and gradient cost (time ratio;"
+                 " rev = (fwd+rev) − fwd, the reverse pass alone)."
                  % (report["settings"]["repeats"], f"{report['settings']['numpy_max_rays']:.0e}"))
     lines.append("")
     lines.append("| " + " | ".join(head) + " |")
@@ -621,7 +626,8 @@ def markdown(report: dict) -> str:
                     row.append(_fmt(r["rays_per_s"] / 1e6) + ("*" if r.get("scaled_from_subset") else ""))
             rt = sz["ratios"]
             row += [_fmt(rt.get("lfsim_f64_fwd_over_numpy")), _fmt(rt.get("lfsim_f64_fwd_over_optiland")),
-                    _fmt(rt.get("fwdrev_over_fwd_time_f64")), _fmt(rt.get("fwdrev_over_fwd_time_f32"))]
+                    _fmt(rt.get("fwdrev_over_fwd_time_f64")), _fmt(rt.get("fwdrev_over_fwd_time_f32")),
+                    _fmt(rt.get("rev_over_fwd_time_f64")), _fmt(rt.get("rev_over_fwd_time_f32"))]
             lines.append("| " + " | ".join(row) + " |")
     # CPU use of the lfsim calls at each scene's largest N (small N are dominated by
     # single-threaded Python tracing of the IR).

@@ -343,8 +343,13 @@ class SequentialTracer:
             n1 = pr(self._index_param[i])
             d_new = dl
             if s.interaction in ("refract", "reflect", "tir"):
-                _, zx, zy, _ = sag(hit.x, hit.y, shape)
-                N = normal(zx, zy, T.Array3)
+                if owner.needs_newton:
+                    _, zx, zy, _ = sag(hit.x, hit.y, shape)
+                    N = normal(zx, zy, T.Array3)
+                else:
+                    # On a conic, ∇[c(x²+y²+(1+k)z²) − 2z] is the normal: no square root.
+                    N = dr.normalize(T.Array3(shape.c * hit.x, shape.c * hit.y,
+                                              shape.c * (1.0 + shape.k) * hit.z - 1.0))
                 cos_i = dr.dot(dl, N)
                 N = dr.select(cos_i < 0.0, -N, N)
                 cos_i = dr.abs(cos_i)
