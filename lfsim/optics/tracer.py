@@ -69,10 +69,10 @@ def _rot_xyz(ax, ay, az, T):
     cx, sx = dr.cos(ax), dr.sin(ax)
     cy, sy = dr.cos(ay), dr.sin(ay)
     cz, sz = dr.cos(az), dr.sin(az)
-    Rx = T.Matrix3(1, 0, 0, 0, cx, -sx, 0, sx, cx)
-    Ry = T.Matrix3(cy, 0, sy, 0, 1, 0, -sy, 0, cy)
-    Rz = T.Matrix3(cz, -sz, 0, sz, cz, 0, 0, 0, 1)
-    return Rx @ Ry @ Rz
+    sxsy, cxsy = sx * sy, cx * sy
+    return T.Matrix3(cy * cz, -cy * sz, sy,
+                     sxsy * cz + cx * sz, cx * cz - sxsy * sz, -sx * cy,
+                     sx * sz - cxsy * cz, cxsy * sz + sx * cz, cx * cy)
 
 
 def _ideal_lens(d, h, phi, n, T):
