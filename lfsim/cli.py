@@ -76,23 +76,33 @@ def read_rays_csv(path: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 def cmd_trace(args) -> int:
+    from .optics.tracer import Status
+
     design = load(args.design)
     o, d = read_rays_csv(args.rays)
     r = design.trace(o, d, wavelength_nm=args.wavelength_nm, precision=args.precision)
+    arrays = bool(design.system.arrays)  # lenslet (m, n) columns only where there is an array
     if args.json:
+        rows = []
+        for i in range(len(o)):
+            row = {"position": r.positions[i].tolist(), "direction": r.directions[i].tolist(),
+                   "status": int(r.status[i]), "status_name": Status(int(r.status[i])).name.lower(),
+                   "opl": float(r.opl[i])}
+            if arrays:
+                row["lenslet"] = r.lenslet[i].tolist()
+            rows.append(row)
         print(_dump({
             "design": design.path, "wavelength_nm": args.wavelength_nm or design.system.primary_wavelength_nm,
-            "precision": args.precision,
-            "rays": [{"position": r.positions[i].tolist(), "direction": r.directions[i].tolist(),
-                      "status": int(r.status[i]), "opl": float(r.opl[i])} for i in range(len(o))],
+            "precision": args.precision, "rays": rows,
         }))
     else:
         buf = io.StringIO()
         w = csv.writer(buf)
-        w.writerow(["x", "y", "z", "dx", "dy", "dz", "status", "opl"])
+        w.writerow(["x", "y", "z", "dx", "dy", "dz", "status", "opl"] + (["m", "n"] if arrays else []))
         for i in range(len(o)):
             w.writerow([f"{v:.15g}" for v in (*r.positions[i], *r.directions[i])]
-                       + [int(r.status[i]), f"{r.opl[i]:.15g}"])
+                       + [int(r.status[i]), f"{r.opl[i]:.15g}"]
+                       + (r.lenslet[i].tolist() if arrays else []))
         if args.out:
             write_text(args.out, buf.getvalue())
         else:

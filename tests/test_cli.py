@@ -59,3 +59,32 @@ def test_layout_writes_pictures_and_summary(scenes, tmp_path, capsys):
     assert len(rms) == 3 and all(0 < v < 50 for v in rms)
     assert not list(out.glob(".*"))  # no temporary files left behind
     assert np.isfinite(s["first_order"]["efl"])
+
+
+def test_trace_reports_lenslets_for_arrays(tmp_path, capsys):
+    d = tmp_path / "mla.toml"
+    d.write_text("""
+[arrays.mla]
+m = 3
+n = 3
+pitch = 1.0
+[[surfaces]]
+radius = 1.5
+thickness = 1.0
+material = 1.5
+array = "mla"
+[[surfaces]]
+thickness = 2.0
+array = "mla"
+[[surfaces]]
+dummy = true
+""")
+    rays = tmp_path / "r.csv"
+    rays.write_text("x,y,z,dx,dy,dz\n1,-1,-1,0,0,1\n0.45,0,-0.01,0.5,0,1\n")
+    assert main(["trace", str(d), "--rays", str(rays), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)["rays"]
+    assert out[0]["lenslet"] == [2, 0] and out[0]["status_name"] == "ok"
+    assert out[1]["status_name"] == "wrong_lenslet"
+    assert main(["trace", str(d), "--rays", str(rays)]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert lines[0].endswith("status,opl,m,n") and lines[1].endswith(",2,0")
