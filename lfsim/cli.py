@@ -142,6 +142,34 @@ def cmd_layout(args) -> int:
     return 0
 
 
+def cmd_ini(args) -> int:
+    from .ini.first_order import IniInputError, ini_first_order
+
+    if args.z_ic is not None and args.cdp_diopters is not None:
+        ref = ini_first_order(args.p_mla, args.g, args.f_ep, args.z_xp, args.m, args.n,
+                              l=args.l, f_mla=args.f_mla, z_ic=args.z_ic)
+        if abs(ref.cdp_diopters - args.cdp_diopters) > 1e-9 * max(1.0, args.cdp_diopters):
+            raise InputError(f"--cdp-diopters = {args.cdp_diopters!r} disagrees with --z-ic = {args.z_ic!r}, "
+                             f"which puts the CDP at {ref.cdp_diopters:.9g} D: give one of them")
+        z_ic, cdp = args.z_ic, None
+    else:
+        z_ic, cdp = args.z_ic, args.cdp_diopters
+    try:
+        fo = ini_first_order(args.p_mla, args.g, args.f_ep, args.z_xp, args.m, args.n,
+                             l=args.l, f_mla=args.f_mla, z_ic=z_ic, cdp_diopters=cdp,
+                             d_mla_ep=args.d_mla_ep)
+    except IniInputError as e:
+        raise InputError(str(e)) from None
+    d = fo.as_dict()
+    if args.json:
+        print(_dump(d))
+    else:
+        print("InI-HMD first-order model (Eqs. 1-10; mm, deg, diopters)")
+        for k, v in d.items():
+            print(f"  {k:22s} {'inf' if v is None else (f'{v:.10g}' if isinstance(v, float) else v)}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="lfsim", description=__doc__.split("\n")[0])
     p.add_argument("--version", action="version", version=f"lfsim {__version__}")
@@ -162,6 +190,22 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--method", choices=("auto", "paraxial", "parabasal"), default="auto")
     f.add_argument("--json", action="store_true")
     f.set_defaults(func=cmd_first_order)
+
+    ini = sub.add_parser("ini", help="InI-HMD first-order model (Eqs. 1-10) from explicit inputs")
+    ini.add_argument("--p-mla", type=float, required=True, help="lenslet pitch (mm)")
+    ini.add_argument("--g", type=float, required=True, help="display to MLA gap (mm)")
+    mla = ini.add_mutually_exclusive_group(required=True)
+    mla.add_argument("--l", type=float, help="MLA to intermediate CDP (mm; inf allowed)")
+    mla.add_argument("--f-mla", type=float, help="lenslet focal length (mm): l from 1/g + 1/l = 1/f")
+    ini.add_argument("--z-ic", type=float, help="intermediate CDP to eyepiece (mm)")
+    ini.add_argument("--d-mla-ep", type=float, help="MLA to eyepiece (mm), instead of --z-ic")
+    ini.add_argument("--cdp-diopters", type=float, help="virtual CDP depth (D; 0 = infinity), instead of --z-ic")
+    ini.add_argument("--z-xp", type=float, required=True, help="eyepiece to viewing window (mm)")
+    ini.add_argument("--f-ep", type=float, required=True, help="eyepiece focal length (mm)")
+    ini.add_argument("--m", type=int, required=True, help="lenslets along x")
+    ini.add_argument("--n", type=int, required=True, help="lenslets along y")
+    ini.add_argument("--json", action="store_true")
+    ini.set_defaults(func=cmd_ini)
 
     lay = sub.add_parser("layout", help="layout and spot-diagram pictures plus a summary")
     lay.add_argument("design")

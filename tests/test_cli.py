@@ -88,3 +88,20 @@ dummy = true
     assert main(["trace", str(d), "--rays", str(rays)]) == 0
     lines = capsys.readouterr().out.strip().splitlines()
     assert lines[0].endswith("status,opl,m,n") and lines[1].endswith(",2,0")
+
+
+def test_ini_first_order_verb(capsys):
+    args = ["ini", "--p-mla", "1", "--g", "3.5", "--f-mla", "3", "--z-xp", "25", "--f-ep", "25",
+            "--m", "17", "--n", "9"]
+    assert main(args + ["--cdp-diopters", "0", "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    for key in ("p_mla", "g", "l", "z_ic", "z_xp", "f_ep", "z_cdp", "m", "n", "p_ei", "z_xp_image",
+                "d_v", "D_v", "delta_p_eic", "p_eic", "fov_diag_deg"):
+        assert key in d
+    assert d["z_cdp"] is None and d["z_xp_image"] is None and d["p_ei"] == 1.0  # 0 D, telecentric
+    assert abs(d["fov_diag_deg"] - 2 * np.degrees(np.arctan(np.hypot(17, 9) / 2 / 25))) < 1e-9
+    assert main(args + ["--z-ic", "19", "--cdp-diopters", "3"]) == 2
+    assert "disagrees" in capsys.readouterr().err
+    assert main(["ini", "--p-mla", "0", "--g", "3.5", "--f-mla", "3", "--z-xp", "25", "--f-ep", "25",
+                 "--m", "17", "--n", "9", "--z-ic", "19"]) == 2
+    assert "p_mla = 0.0" in capsys.readouterr().err
