@@ -43,7 +43,7 @@ def test_paraboloid_mirror_focuses_parallel_rays(make_design):
 def test_hyperbolic_surface_images_infinity_to_a_point(make_design, n):
     # Plano-hyperbolic lens: collimated light inside glass meets a hyperboloid
     # with k = -n^2 and focuses perfectly at z' = -R/(n-1) behind its vertex.
-    R, t = -10.0, 5.0
+    R = -10.0
     f = -R / (n - 1)
     d = make_design(f"""
         [object]
@@ -112,7 +112,6 @@ def test_plane_parallel_plate_lateral_shift(make_design, theta_deg):
     # Optical path: n·(glass path) + air path, in closed form.
     sin2 = math.sin(th) / n
     glass = t / math.sqrt(1 - sin2 * sin2)
-    z_end = t + 3.0
     air_before = 10.0
     air_after = 3.0 / math.cos(th)
     expected = air_before + n * glass + air_after

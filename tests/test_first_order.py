@@ -1,13 +1,13 @@
 """First-order optics: y-nu trace, parabasal AD route, folded and tilted systems."""
 
 import math
+from pathlib import Path
 
 import numpy as np
-import pytest
 
 import lfsim
 
-TRIPLET = (Path := __import__("pathlib").Path)(__file__).resolve().parents[1] / "scenes" / "cooke_triplet.toml"
+TRIPLET = Path(__file__).resolve().parents[1] / "scenes" / "cooke_triplet.toml"
 
 
 def folded_triplet(tmp_path, fold_at=20.0):
@@ -58,7 +58,6 @@ def test_folded_image_lies_where_the_fold_sends_it(tmp_path):
 
 def test_parabasal_matrix_equals_finite_parabasal_rays(tmp_path):
     """AD parabasal derivatives vs real rays offset by ±h about the axis ray."""
-    d = lfsim.load(TRIPLET)
     text = TRIPLET.read_text().replace('name = "L2_front"', 'name = "L2_front"\ntilt = [1.5, 0.8, 0.0]\ndecenter = [0.05, -0.1]')
     p = tmp_path / "tilted.toml"
     p.write_text(text)

@@ -88,7 +88,6 @@ def freeform(tmp_path_factory):
 
 def test_reverse_gradients_match_central_differences(freeform):
     tr = freeform.tracer("float64")
-    T = tr.T
     rays = _bundle(tr)
     v0 = np.asarray(freeform.system.parameter_values(587.5618))
     P = tr.params(values=v0)
@@ -127,7 +126,6 @@ def test_reverse_gradients_match_central_differences(freeform):
 
 def test_gradients_finite_for_failing_rays(freeform):
     tr = freeform.tracer("float64")
-    T = tr.T
     o = np.array([[0.0, 50.0, -2.0], [0.0, 0.0, -2.0], [0.0, 7.99, -2.0]])
     d = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [0.0, 0.3, 1.0]])
     rays = tr.rays(o, d)
@@ -164,7 +162,6 @@ def test_batched_parameter_blocks_give_the_same_rays(freeform):
 
 def test_batched_forward_jacobian_matches_central_differences(freeform):
     tr = freeform.tracer("float64")
-    T = tr.T
     rays = _bundle(tr, 4)
     v0 = np.asarray(freeform.system.parameter_values(587.5618))
     names = ["A.curvature", "A.A4", "B.x2y1", "B.tilt_x", "B.decenter_y", "C.thickness", "A.index",

@@ -34,7 +34,7 @@ def test_catalog_formulas_reproduce_printed_nd_vd():
 @pytest.mark.parametrize("name,ref", [("N-BK7", ("N-BK7", "schott")), ("F2", ("F2", "schott")),
                                       ("N-SF11", ("N-SF11", "schott")), ("SK16", ("SK16", None))])
 def test_indices_match_optiland(name, ref):
-    optiland = pytest.importorskip("optiland")
+    pytest.importorskip("optiland")
     from optiland.materials import Material
 
     with warnings.catch_warnings():

@@ -84,23 +84,21 @@ def test_xy_coefficients_spanning_1e_2_to_1e_20(make_design, norm_radius):
 @pytest.mark.parametrize("frac", [0.999, 0.9999])
 def test_hemispherical_lenslets_hit_near_their_rim(make_design, frac):
     R = 0.5  # hemisphere: the lenslet's semi-aperture equals its radius
-    d = make_design(f"""
+    lenslet = f"""
         [arrays.mla]
         m = 3
         n = 3
         pitch = 1.0
         [[surfaces]]
         radius = {R}
-        thickness = 0.5
         material = 1.5
         array = "mla"
         semi_diameter = {R}
-        [[surfaces]]
-        thickness = 1.0
-        array = "mla"
-        [[surfaces]]
-        dummy = true
-    """)
+    """
+    # Full plano-convex lenslet, and a front-face-only copy to check Snell at the rim.
+    d = make_design(lenslet + 'thickness = 0.5\n[[surfaces]]\nthickness = 1.0\narray = "mla"\n'
+                    "[[surfaces]]\ndummy = true\n")
+    front = make_design(lenslet + "thickness = 0.2\n[[surfaces]]\ndummy = true\n", name="front.toml")
     h = frac * R
     o = np.array([[1.0 + h, 1.0, -1.0], [1.0, 1.0 - h, -1.0], [1.0 + 0.3, 1.0, -1.0]])
     r = d.trace(o, np.tile([0.0, 0.0, 1.0], (3, 1)), record=True)
@@ -111,21 +109,7 @@ def test_hemispherical_lenslets_hit_near_their_rim(make_design, frac):
     th_i, th_t = math.asin(frac), math.asin(frac / 1.5)
     assert math.sin(th_i - th_t) > 1 / 1.5
     assert r.status.tolist() == [Status.TIR, Status.TIR, Status.OK] and r.failed_at[:2].tolist() == [1, 1]
-    # Snell at the rim itself, on a front-face-only copy.
-    front = make_design(f"""
-        [arrays.mla]
-        m = 3
-        n = 3
-        pitch = 1.0
-        [[surfaces]]
-        radius = {R}
-        thickness = 0.2
-        material = 1.5
-        array = "mla"
-        semi_diameter = {R}
-        [[surfaces]]
-        dummy = true
-    """, name="front.toml")
+    # Snell at the rim itself, on the front-face-only copy.
     f = front.trace(o[:1], np.array([[0.0, 0.0, 1.0]]), record=True)
     assert f.status[0] == Status.OK
     n_hat = (f.path[0, 0] - [1.0, 1.0, R]) / R  # centre of curvature at z = R

@@ -157,7 +157,7 @@ def _material(ctx, tab, key, path, default):
         raise ctx.err(f"{path}.{key}", tab[key], str(e).split(": ", 1)[-1]) from None
 
 
-def _surface(ctx: _Ctx, raw, i: int, names: dict, arrays: dict, n_surf: int) -> Surface:
+def _surface(ctx: _Ctx, raw, i: int, names: dict, arrays: dict) -> Surface:
     path = f"surfaces[{i}]"
     if not isinstance(raw, dict):
         raise ctx.err(path, raw, "each [[surfaces]] entry must be a table")
@@ -344,7 +344,7 @@ def system_from_dict(data: dict, file: str = "<dict>") -> System:
     names: dict[str, int] = {}
     surfaces: list[Surface] = []
     for i, raw in enumerate(raw_surfaces):
-        s = _surface(ctx, raw, i, names, arrays, len(raw_surfaces))
+        s = _surface(ctx, raw, i, names, arrays)
         names[s.name] = i
         surfaces.append(s)
     if array_names := {s.array for s in surfaces if s.array}:

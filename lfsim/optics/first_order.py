@@ -177,14 +177,8 @@ def find_axis_ray(tracer, P_np, stop: int, n_obj: float, object_distance: float)
     """
     import drjit as dr
 
-    from .tracer import RayState
-
-    T = tracer.T
     P = tracer.params(values=P_np)
-    with dr.suspend_grad():
-        Rs, os_ = tracer.frames(P)
-    R_stop = np.array([[float(Rs[stop][i][j][0]) for j in range(3)] for i in range(3)])
-    o_stop = np.array([float(os_[stop][i][0]) for i in range(3)])
+    R_stop, o_stop = tracer.frames_numpy(P)[stop]
 
     def shoot(u):
         if math.isinf(object_distance):
@@ -268,11 +262,10 @@ def parabasal_matrices(tracer, wavelength_nm: float):
         rows = np.array([Jp @ f1, Jp @ f2, n_here * (Jd @ f1), n_here * (Jd @ f2)])  # (4 out, 4 in)
         return rows, p0, dir0
 
-    frames_R, _ = tracer.frames(P)
+    frames = tracer.frames_numpy(P)
 
     def up_of(k):
-        R = np.array([[float(frames_R[k][i][j][0]) for j in range(3)] for i in range(3)])
-        return R[:, 1]
+        return frames[k][0][:, 1]
 
     n_stop = float(media[stop + 1].index(wavelength_nm))
     Jf, _, _ = jac(stop, n_stop, up_of(stop))
