@@ -123,7 +123,7 @@ def plot_spots(design, rows, spots, path):
     axes[0][0].set_ylabel("y (µm)")
     fig.suptitle(f"{design.name}: spot diagrams at the image surface", fontsize=10)
     fig.tight_layout()
-    save_figure(fig, path, dpi=130)
+    save_figure(fig, path, dpi=130, bbox_inches="tight")
     plt.close(fig)
 
 
