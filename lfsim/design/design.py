@@ -9,7 +9,7 @@ import numpy as np
 
 from ..backend import from_numpy
 from ..optics.prescription import System
-from .loader import load_system, system_from_dict
+from .loader import ini_from_dict, load_system, system_from_dict
 
 
 @dataclass
@@ -54,6 +54,8 @@ class Design:
         self.raw = raw or {}
         self.path = path
         self._tracers: dict = {}
+        #: The validated ``[ini]`` section (:class:`IniSpec`), None for a plain lens.
+        self.ini = ini_from_dict(self.raw, system, path or "<dict>")
 
     @classmethod
     def from_dict(cls, data: dict, file: str = "<dict>") -> "Design":

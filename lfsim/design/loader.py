@@ -317,6 +317,13 @@ def _check_reach(ctx: _Ctx, s: Surface, shape: Surface, i: int, arrays):
                       f"reaches only {reach:.6g} mm from its axis")
 
 
+def ini_from_dict(data: dict, system: System, file: str = "<dict>"):
+    """The validated ``[ini]`` section (:class:`~lfsim.design.ini_section.IniSpec`) or None."""
+    from .ini_section import parse_ini
+
+    return parse_ini(_Ctx(file), data, system)
+
+
 def system_from_dict(data: dict, file: str = "<dict>") -> System:
     """Validate a parsed design table and build the optics ``System``."""
     ctx = _Ctx(file)

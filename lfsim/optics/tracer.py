@@ -213,7 +213,8 @@ class SequentialTracer:
         return Rs, os_
 
     # ---------------------------------------------------------------- trace
-    def trace(self, P, rays: RayState, block=None, lenslet=None, record: bool = False) -> TraceOutput:
+    def trace(self, P, rays: RayState, block=None, lenslet=None, record: bool = False,
+              first: int = 0, last: int | None = None) -> TraceOutput:
         """Trace ``rays`` through every surface; see the module docstring.
 
         Parameters
@@ -232,6 +233,10 @@ class SequentialTracer:
             vertex plane.
         record : bool
             Also return the global hit position at every surface.
+        first, last : int
+            Trace only surfaces ``first..last`` (inclusive; default: all), for
+            rays given in the global frame in front of surface ``first`` and
+            in the medium before it. Used for first-order data of a group.
         """
         T = self.T
         n = dr.width(rays.p)
@@ -265,8 +270,11 @@ class SequentialTracer:
         # Rays are carried in the local frame of the last surface met, so each
         # surface costs one frame change: x_i = A_i (x_prev − b_i).
         A, b = self._relative_frames(Rs, os_)
+        stop_at = len(self.system.surfaces) - 1 if last is None else int(last)
         last = None
         for i, s in enumerate(self.system.surfaces):
+            if i < first or i > stop_at:
+                continue
             if s.interaction == "break":
                 if record:
                     path.append(self._to_global(p, d, Rs, os_, last, block))
@@ -274,8 +282,12 @@ class SequentialTracer:
             # Per-ray gathers (also for a single block): the reverse pass then
             # scatter-adds into the frame arrays inside one kernel instead of
             # launching a reduction per broadcast scalar.
-            Ai = dr.gather(T.Matrix3, A[i], block, mode=self.reduce_mode)
-            bi = dr.gather(T.Array3, b[i], block, mode=self.reduce_mode)
+            if last is None and i > 0:  # first traced surface: rays come in global coordinates
+                Ai = dr.gather(T.Matrix3, Rs[i].T, block, mode=self.reduce_mode)
+                bi = dr.gather(T.Array3, os_[i], block, mode=self.reduce_mode)
+            else:
+                Ai = dr.gather(T.Matrix3, A[i], block, mode=self.reduce_mode)
+                bi = dr.gather(T.Array3, b[i], block, mode=self.reduce_mode)
             pl = Ai @ (p - bi)
             dl = Ai @ d
 

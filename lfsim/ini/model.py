@@ -1,0 +1,364 @@
+"""The InI-HMD as a whole: its paraxial model, CDP states and elemental-image layout.
+
+The paper's Eqs. (1)–(10) describe thin elements. A real design (thick aspheric
+lenslets, a relay with a tunable lens, a tilted freeform prism) has the same
+first-order structure, which lfsim takes from the design itself: the exact
+first-order (parabasal) maps of
+
+* the lenslet (display state → stop hit and → state behind the MLA), about the
+  axis of one lenslet — every lenslet is the same, shifted by its centre,
+  Eq. (1); and
+* the eyepiece group (state behind the MLA → state on the viewing window, in
+  the viewing-window frame), about the system axis, per CDP state,
+
+obtained with Dr.Jit forward-mode AD of the real tracer (the zero-step limit of
+parabasal rays). Composed, they give every sub-system's paraxial ray as an
+affine function of the display point ``s`` and slope ``t``. Ray states are
+``(x, y, tan_x, tan_y)`` on a plane (slopes dx/dz, dy/dz). For ideal (paraxial)
+elements the maps are the thin-lens equations and the model reproduces
+Eqs. (2)–(10) exactly (see the tests); for real designs it is their thick,
+anamorphic generalization and the reference for GD (Eq. 11) and PA (Eq. 12).
+
+Conventions: lenslet (m, n) is 0-based here (``m = 0..M−1``); reports use the
+paper's 1-based indices. The *retinal angle* of a ray leaving the viewing
+window at ``h`` with slope ``t``, for an ideal eye focused at ``D`` diopters,
+is ``r = t − h·D/1000`` (tangent of the visual angle of the point it appears to
+come from on the CDP; finite at 0 D): the ideal eye lens maps it to the retinal
+point ``f_eye·r``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import drjit as dr
+import numpy as np
+
+from ..design.errors import DesignError
+from ..optics.tracer import RayState, Status
+
+
+class IniModelError(ValueError):
+    """The design's optics do not form a working InI-HMD (e.g. the axis ray fails)."""
+
+
+@dataclass
+class DepthState:
+    """First-order data of one CDP state (lengths mm, angles deg, powers D)."""
+
+    diopters: float  # CDP depth the state serves
+    tunable_power_diopters: float | None
+    cdp_diopters_x: float  # paraxial CDP depth actually made, x and y meridians
+    cdp_diopters_y: float
+    p_ei: tuple[float, float]  # Eq. (2): EI pitch on the display
+    d_v: tuple[float, float]  # Eq. (5): footprint width on the viewing window
+    D_v: tuple[float, float]  # Eq. (6): viewing-window size
+    delta_theta_eic_deg: tuple[float, float]  # Eq. (7) as an angle (tan step, in degrees of atan)
+    theta_eic_deg: tuple[float, float]  # Eq. (8) as an angle
+    fov_deg: tuple[float, float]  # full FOV between the edge EI centres' outer edges
+    fov_diag_deg: float  # Eq. (10)
+    pixel_arcmin: tuple[float, float]  # one display pixel seen from the viewing window
+    nyquist_cpd: float  # display Nyquist angular frequency (cycles/degree)
+
+    def as_dict(self) -> dict:
+        from dataclasses import asdict
+
+        return asdict(self)
+
+
+def _tan_deg(t: float) -> float:
+    return math.degrees(math.atan(t))
+
+
+class IniModel:
+    """Paraxial model, CDP states and EI layout of a design with an ``[ini]`` section.
+
+    Parameters
+    ----------
+    design : lfsim.Design
+    wavelength_nm : float, optional
+        Default: the design's primary wavelength.
+    precision : str
+    """
+
+    def __init__(self, design, wavelength_nm: float | None = None, precision: str = "float64"):
+        if design.ini is None:
+            raise DesignError(design.path or "<dict>", "ini", None, "the design has no [ini] section")
+        self.design = design
+        self.spec = spec = design.ini
+        self.system = design.system
+        self.file = design.path or "<dict>"
+        self.lam = float(wavelength_nm or self.system.primary_wavelength_nm)
+        self.tracer = design.tracer(precision)
+        self.T = self.tracer.T
+        self.arr = self.system.arrays[spec.mla]
+        self.g = float(self.system.object_distance)
+        if not math.isfinite(self.g):
+            raise DesignError(self.file, "object.distance", "inf", "the display (object) must be at a finite gap")
+        self.values0 = np.asarray(self.system.parameter_values(self.lam), dtype=np.float64)
+        frames = self.tracer.frames_numpy()
+        self.R_vw, self.o_vw = frames[spec.viewing_window]
+        self.z_mla_back = float(frames[spec.mla_surfaces[-1]][1][2])
+        M, N = self.arr.m, self.arr.n
+        self.m_ref, self.n_ref = M // 2, N // 2
+        self.c_ref = self.lenslet_center(self.m_ref, self.n_ref)
+        stop = self.system.surfaces[spec.stop]
+        if stop.aperture is not None and stop.aperture.kind == "rectangular":
+            self.stop_half = np.array(stop.aperture.half_width)
+        elif stop.aperture is not None:
+            self.stop_half = np.array([stop.aperture.radius] * 2) / math.sqrt(2.0)
+        else:
+            self.stop_half = 0.5 * np.array(self.arr.pitch)
+        self._lenslet_maps()
+        self._solve_states()
+
+    # ------------------------------------------------------------ geometry
+    def lenslet_center(self, m, n) -> np.ndarray:
+        """Eq. (1): lenslet axis (x, y) on the display side (0-based m, n; arrays allowed)."""
+        a = self.arr
+        m, n = np.asarray(m, dtype=np.float64), np.asarray(n, dtype=np.float64)
+        return np.stack([a.center[0] + (m - 0.5 * (a.m - 1)) * a.pitch[0],
+                         a.center[1] + (n - 0.5 * (a.n - 1)) * a.pitch[1]], axis=-1)
+
+    def values(self, k: int | None = None) -> np.ndarray:
+        """Parameter vector of CDP state ``k`` (all states stacked when None)."""
+        if k is None:
+            return np.concatenate([self.values(i) for i in range(len(self.depths))])
+        v = self.values0.copy()
+        if self.spec.tunable is not None:
+            v[self.tracer.index[f"{self.system.surfaces[self.spec.tunable].name}.power"]] = self.tl_power[k]
+        return v
+
+    # ------------------------------------------------------- linearization
+    def _linearize(self, blocks: np.ndarray, base: np.ndarray, z_in: float, first: int, last: int,
+                   frame, on_surface: bool, lenslet=None):
+        """Affine map of ray states about ``base`` through surfaces first..last.
+
+        Input: state (x, y, tan_x, tan_y) on the global plane ``z = z_in``.
+        Output: state on the plane of ``frame`` (R, o) (or, ``on_surface``, the
+        hit point on the surface in that frame). Returns ``(F0, J)`` with shapes
+        (B, 4) and (B, 4, 4), B = number of parameter blocks.
+        """
+        tr, T = self.tracer, self.T
+        nb = blocks.shape[0]
+        j = dr.arange(T.UInt32, 4 * nb)
+        k = j % 4
+        seed = dr.zeros(T.Float, 1)
+        dr.enable_grad(seed)
+        comp = [T.Float(float(base[c])) + dr.select(k == c, seed, 0.0) for c in range(4)]
+        o = T.Array3(comp[0], comp[1], T.Float(z_in) + 0.0 * comp[0])
+        d = T.Array3(comp[2], comp[3], 1.0 + 0.0 * comp[0])
+        P = tr.params(values=blocks.ravel())
+        lens = None
+        if lenslet is not None:
+            lens = (dr.full(T.Int32, lenslet[0], 4 * nb), dr.full(T.Int32, lenslet[1], 4 * nb))
+        out = tr.trace(P, RayState(o, d), block=j // 4, lenslet=lens, first=first, last=last)
+        R, og = frame
+        Rt = T.Matrix3(*(float(v) for v in R.T.ravel()))
+        pl = Rt @ (out.p - T.Array3(*(float(v) for v in og)))
+        dl = Rt @ out.d
+        tx, ty = dl.x / dl.z, dl.y / dl.z
+        if on_surface:
+            x, y = pl.x, pl.y
+        else:
+            x, y = pl.x - tx * pl.z, pl.y - ty * pl.z
+        outs = [x, y, tx, ty]
+        dr.forward_from(seed, flags=dr.ADFlag.ClearNone)  # outputs share interior nodes
+        status = np.asarray(out.status)
+        if np.any(status != 0):
+            bad = int(np.asarray(out.failed_at)[np.argmax(status != 0)])
+            name = Status(int(status[status != 0][0])).name.lower()
+            where = self.system.surfaces[bad].name if bad >= 0 else "?"
+            raise IniModelError(f"{self.file}: the axis ray of the first-order model fails "
+                                f"({name}) at surface {where!r}")
+        vals = np.stack([np.asarray(v, dtype=np.float64).reshape(nb, 4)[:, 0] for v in outs], axis=1)
+        J = np.stack([np.asarray(dr.grad(v), dtype=np.float64).reshape(nb, 4) for v in outs], axis=1)
+        return vals, J
+
+    def _lenslet_maps(self):
+        """Display state → stop hit (S0, JS) and → state behind the MLA (L0, JL), reference lenslet."""
+        spec = self.spec
+        base = np.array([self.c_ref[0], self.c_ref[1], 0.0, 0.0])
+        blocks = self.values0[None, :]
+        frames = self.tracer.frames_numpy()
+        R_s, o_s = frames[spec.stop]
+        o_s = o_s + np.array([self.c_ref[0], self.c_ref[1], 0.0])
+        S0, JS = self._linearize(blocks, base, -self.g, 0, spec.stop, (R_s, o_s), True,
+                                 (self.m_ref, self.n_ref))
+        self.S0, self.JS = S0[0, :2], JS[0, :2]
+        back = (np.eye(3), np.array([0.0, 0.0, self.z_mla_back]))
+        L0, JL = self._linearize(blocks, base, -self.g, 0, spec.mla_surfaces[-1], back, False,
+                                 (self.m_ref, self.n_ref))
+        self.L0, self.JL = L0[0] - np.array([self.c_ref[0], self.c_ref[1], 0, 0]), JL[0]
+
+    def _group_maps(self, blocks):
+        """State behind the MLA → viewing-window state, about the system axis, per block."""
+        return self._linearize(blocks, np.zeros(4), self.z_mla_back, self.spec.mla_surfaces[-1] + 1,
+                               self.spec.viewing_window, (self.R_vw, self.o_vw), False)
+
+    # ------------------------------------------------------------ CDP states
+    def _depth_of(self, JG):
+        """Paraxial CDP depths (D) in x and y made by group maps JG (B, 4, 4)."""
+        A = JG @ self.JL  # display (s, t) → VW state, about the lenslet axis
+        Tp, Tt = A[:, 0:2, 2:4], A[:, 2:4, 2:4]
+        # The image of a display point is at z_CDP where r = t − h/z_CDP does not depend on the pupil.
+        return 1000.0 * Tt[:, 0, 0] / Tp[:, 0, 0], 1000.0 * Tt[:, 1, 1] / Tp[:, 1, 1], Tp, Tt
+
+    def _solve_states(self):
+        spec, tr = self.spec, self.tracer
+        if spec.tunable is None:
+            G0, JG = self._group_maps(self.values0[None, :])
+            dx, dy, _, _ = self._depth_of(JG)
+            D = 0.5 * (dx[0] + dy[0])
+            if not D > -1e-9:
+                raise DesignError(self.file, "ini", None, f"the display is imaged to a real point behind "
+                                  f"the viewing window ({D:.4g} D): no virtual CDP")
+            if spec.cdp_diopters is not None and abs(spec.cdp_diopters[0] - D) > 0.01:
+                raise DesignError(self.file, "ini.cdp_diopters", spec.cdp_diopters,
+                                  f"the geometry puts the CDP at {D:.4f} D")
+            self.depths = [float(spec.cdp_diopters[0]) if spec.cdp_diopters else max(D, 0.0)]
+            self.tl_power = [None]
+            self.G0, self.JG = G0, JG
+            return
+        self.depths = list(spec.cdp_diopters)
+        name = f"{self.system.surfaces[spec.tunable].name}.power"
+        ip = tr.index[name]
+        nd = len(self.depths)
+        target = np.array(self.depths) / 1000.0
+
+        def residual(phi):
+            blocks = np.tile(self.values0, (nd, 1))
+            blocks[:, ip] = phi
+            G0, JG = self._group_maps(blocks)
+            _, _, Tp, Tt = self._depth_of(JG)
+            res = (Tt[:, 0, 0] + Tt[:, 1, 1]) - target * (Tp[:, 0, 0] + Tp[:, 1, 1])
+            return res, G0, JG
+
+        if spec.tunable_power_diopters is not None:
+            phi = np.array(spec.tunable_power_diopters) / 1000.0
+            _, G0, JG = residual(phi)
+        else:
+            # Secant iteration (exact in one step when the axis ray crosses the lens centre).
+            p0 = np.full(nd, self.values0[ip])
+            p1 = p0 + 1e-3
+            r0, _, _ = residual(p0)
+            for _ in range(30):
+                r1, G0, JG = residual(p1)
+                moving = (p1 != p0) & (r1 != 0)
+                if not np.any(moving) or np.all(np.abs(p1 - p0) < 1e-13):
+                    break
+                slope = np.where(moving, (r1 - r0) / np.where(moving, p1 - p0, 1.0), 1.0)
+                if np.any(slope == 0):
+                    raise DesignError(self.file, "ini.tunable.surface", self.system.surfaces[spec.tunable].name,
+                                      "its power does not change the CDP depth")
+                p0, r0, p1 = p1, r1, np.where(moving, p1 - r1 / slope, p1)
+            phi = p1
+            _, G0, JG = residual(phi)
+        lo_hi = spec.tunable_range_diopters
+        if lo_hi is not None:
+            for D, p in zip(self.depths, phi):
+                if not lo_hi[0] - 1e-9 <= 1000 * p <= lo_hi[1] + 1e-9:
+                    raise DesignError(self.file, "ini.tunable.range_diopters", list(lo_hi),
+                                      f"CDP {D:g} D needs {1000 * p:.4f} D, outside the range")
+        self.tl_power = [float(p) for p in phi]
+        self.G0, self.JG = G0, JG
+
+    # --------------------------------------------------------- paraxial rays
+    def affine(self, k: int, c) -> tuple[np.ndarray, np.ndarray]:
+        """Viewing-window state of lenslet centre ``c`` (..., 2) in CDP state ``k``:
+        ``v = b + A·(s − c, t)`` with A (4, 4) and b (..., 4)."""
+        c = np.asarray(c, dtype=np.float64)
+        shift = np.zeros(c.shape[:-1] + (4,))
+        shift[..., :2] = c - self.c_ref
+        b = self.G0[k] + (self.L0 + shift) @ self.JG[k].T
+        return self.JG[k] @ self.JL, b
+
+    def aim(self, s, c, rho):
+        """Paraxial slope of the ray from display point ``s`` through stop point ``rho``·half
+        of lenslet ``c`` (arrays broadcast; rho in [−1, 1]²)."""
+        s, c, rho = (np.asarray(a, dtype=np.float64) for a in (s, c, rho))
+        target = rho * self.stop_half - self.S0 - (s - c) @ self.JS[:, :2].T
+        return np.linalg.solve(self.JS[:, 2:], target[..., None])[..., 0] if target.ndim > 1 else \
+            np.linalg.solve(self.JS[:, 2:], target)
+
+    def paraxial_vw(self, k: int, s, c, rho):
+        """Paraxial viewing-window state (..., 4) of the ray (s, c, rho) in state k."""
+        s, c = np.asarray(s, dtype=np.float64), np.asarray(c, dtype=np.float64)
+        t = self.aim(s, c, rho)
+        A, b = self.affine(k, c)
+        u = np.concatenate([s - c, t], axis=-1)
+        return b + u @ A.T
+
+    def retinal(self, state, k: int):
+        """Retinal angle (tan, x and y) of viewing-window states for the eye focused on CDP k."""
+        state = np.asarray(state)
+        return state[..., 2:4] - state[..., 0:2] * (self.depths[k] / 1000.0)
+
+    def ei_centers(self, k: int, m, n) -> np.ndarray:
+        """Display position (..., 2) of the centre of EI (m, n) (Eqs. 2 and 4, generalized):
+        its chief ray through the lenslet's stop centre crosses the viewing-window centre.
+
+        Solved in the state ``k``; the layout is fixed, so it is evaluated in the
+        first state (the states differ only behind the MLA, where Eq. (2) depends
+        on z'_xp only through the group — evaluated here for each state)."""
+        c = self.lenslet_center(m, n)
+        # VW position of the chief ray is affine in s: pos = a0 + As·(s − c).
+        zero = np.zeros_like(c)
+        p0 = self.paraxial_vw(k, c, c, zero)[..., :2]
+        cols = []
+        for e in np.eye(2):
+            cols.append(self.paraxial_vw(k, c + e, c, zero)[..., :2] - p0)
+        As = np.stack(cols, axis=-1)
+        return c - np.linalg.solve(As, p0[..., None])[..., 0]
+
+    def ei_pitch(self, k: int = 0) -> np.ndarray:
+        """EI pitch on the display (x, y), Eq. (2) generalized."""
+        a = self.ei_centers(k, np.array([self.m_ref, self.m_ref + 1, self.m_ref]),
+                            np.array([self.n_ref, self.n_ref, self.n_ref + 1]))
+        return np.array([a[1, 0] - a[0, 0], a[2, 1] - a[0, 1]])
+
+    # -------------------------------------------------------------- summary
+    def state(self, k: int) -> DepthState:
+        """First-order data (Eqs. 2–10, generalized) of CDP state k."""
+        A, _ = self.affine(k, self.c_ref)
+        dx, dy, _, _ = self._depth_of(self.JG[k:k + 1])
+        c = self.c_ref
+        s0 = self.ei_centers(k, self.m_ref, self.n_ref)
+        pei = self.ei_pitch(k)
+        z = np.zeros(2)
+        dv, Dv, theta_ei, pix = [], [], [], []
+        for ax in range(2):
+            e = np.eye(2)[ax]
+            plus = self.paraxial_vw(k, s0, c, e)
+            minus = self.paraxial_vw(k, s0, c, -e)
+            dv.append(abs(plus[ax] - minus[ax]))
+            hp = 0.5 * pei[ax]
+            ep = self.paraxial_vw(k, s0 + hp * e, c, z)
+            em = self.paraxial_vw(k, s0 - hp * e, c, z)
+            Dv.append(abs(ep[ax] - em[ax]))
+            theta_ei.append(abs(self.retinal(ep, k)[ax] - self.retinal(em, k)[ax]))
+            pix.append(theta_ei[-1] / pei[ax] * self.spec.pixel_pitch)
+        # Eq. (7)/(9): virtual EI centres step by delta per lenslet.
+        r0 = self.retinal(self.paraxial_vw(k, s0, c, z), k)
+        s1 = self.ei_centers(k, self.m_ref + 1, self.n_ref + 1)
+        r1 = self.retinal(self.paraxial_vw(k, s1, self.lenslet_center(self.m_ref + 1, self.n_ref + 1), z), k)
+        delta = np.abs(r1 - r0)
+        M, N = self.arr.m, self.arr.n
+        fov_diag = 2.0 * math.degrees(math.atan(0.5 * math.hypot(M * delta[0], N * delta[1])))
+        fov = tuple(2.0 * math.degrees(math.atan(0.5 * (nl - 1) * delta[i] + 0.5 * theta_ei[i]))
+                    for i, nl in enumerate((M, N)))
+        pix_deg = [math.degrees(math.atan(p)) for p in pix]
+        tl = self.tl_power[k]
+        return DepthState(
+            diopters=self.depths[k],
+            tunable_power_diopters=None if tl is None else 1000.0 * tl,
+            cdp_diopters_x=float(dx[0]), cdp_diopters_y=float(dy[0]),
+            p_ei=tuple(float(v) for v in pei), d_v=tuple(float(v) for v in dv),
+            D_v=tuple(float(v) for v in Dv),
+            delta_theta_eic_deg=tuple(_tan_deg(v) for v in delta),
+            theta_eic_deg=tuple(_tan_deg(v) for v in theta_ei),
+            fov_deg=fov, fov_diag_deg=fov_diag,
+            pixel_arcmin=tuple(60.0 * p for p in pix_deg),
+            nyquist_cpd=float(1.0 / (2.0 * max(pix_deg))),
+        )
