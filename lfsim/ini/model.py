@@ -279,8 +279,7 @@ class IniModel:
         of lenslet ``c`` (arrays broadcast; rho in [−1, 1]²)."""
         s, c, rho = (np.asarray(a, dtype=np.float64) for a in (s, c, rho))
         target = rho * self.stop_half - self.S0 - (s - c) @ self.JS[:, :2].T
-        return np.linalg.solve(self.JS[:, 2:], target[..., None])[..., 0] if target.ndim > 1 else \
-            np.linalg.solve(self.JS[:, 2:], target)
+        return target @ np.linalg.inv(self.JS[:, 2:]).T
 
     def paraxial_vw(self, k: int, s, c, rho):
         """Paraxial viewing-window state (..., 4) of the ray (s, c, rho) in state k."""

@@ -1,0 +1,186 @@
+"""`lfsim analyze`: the paper's metrics over every sampled sub-system, with plots.
+
+One fused trace (see :mod:`lfsim.ini.subsystems`) carries, per sub-system and
+field, the chief ray, the four marginal rays of Eq. (12), two Gauss–Legendre
+pupil rules (n and 2n nodes per axis: the figure and its convergence check),
+the stop's perimeter (footprints) and the FFT grid of the diffraction MTF.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..ini.model import IniModel
+from ..ini.subsystems import Bundle, sample, trace
+from ..metrics import distortion, footprint, mtf, pupil, spot
+
+CPD_TO_CPR = 180.0 / math.pi
+
+
+@dataclass
+class PupilSets:
+    rho: np.ndarray
+    slices: dict
+    weights: dict
+
+    @classmethod
+    def build(cls, n_gl: int, n_mtf: int, per_side: int = 8):
+        parts = {"chief": np.zeros((1, 2)), "marginal": pupil.MARGINAL}
+        weights = {}
+        for name, n in (("gl", n_gl), ("gl2", 2 * n_gl)):
+            nodes, w = pupil.gauss_legendre_square(n)
+            parts[name], weights[name] = nodes, w
+        parts["perimeter"] = pupil.perimeter(per_side)
+        parts["mtf"] = pupil.mtf_grid(n_mtf)
+        slices, start = {}, 0
+        for k, v in parts.items():
+            slices[k] = slice(start, start + len(v))
+            start += len(v)
+        return cls(np.concatenate(list(parts.values())), slices, weights)
+
+
+def opd_method(model: IniModel) -> str:
+    """"opl" (traced optical path) unless the path holds an ideal (paraxial) element,
+    whose optical path is exact only for one conjugate: then "slopes" (wavefront
+    integrated from the ray directions, :func:`lfsim.metrics.mtf.wavefront_from_slopes`)."""
+    surf = model.system.surfaces[:model.spec.viewing_window + 1]
+    return "slopes" if any(s.interaction == "paraxial" for s in surf) else "opl"
+
+
+def _paraxial(model: IniModel, subs, rho: np.ndarray) -> np.ndarray:
+    """Paraxial viewing-window states (S, F, R, 4) of the rays (display, lenslet, rho)."""
+    S, F = subs.display.shape[:2]
+    out = np.empty((S, F, len(rho), 4))
+    for k in np.unique(subs.k):
+        sel = subs.k == k
+        s = np.broadcast_to(subs.display[sel][:, :, None, :], (sel.sum(), F, len(rho), 2))
+        c = np.broadcast_to(subs.center[sel][:, None, None, :], s.shape)
+        r = np.broadcast_to(rho[None, None], s.shape)
+        out[sel] = model.paraxial_vw(int(k), s, c, r)
+    return out
+
+
+def evaluate(model: IniModel, subs=None, progress: bool = False, mtf_freqs_cpd=None) -> dict:
+    """Trace and measure; returns a dict of numpy arrays and the summary (see :func:`analyze`)."""
+    spec = model.spec
+    subs = subs if subs is not None else sample(model)
+    sets = PupilSets.build(spec.pupil, spec.mtf_grid)
+    t0 = time.perf_counter()
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(subs), desc="sub-systems", unit="sub", leave=False)
+    bundle: Bundle = trace(model, subs, sets.rho, progress=bar.update if bar else None)
+    if bar:
+        bar.close()
+    t_trace = time.perf_counter() - t0
+    states = [model.state(k) for k in range(len(model.depths))]
+    nyq = max(s.nyquist_cpd for s in states)
+    freqs_cpd = np.asarray(mtf_freqs_cpd if mtf_freqs_cpd is not None
+                           else np.linspace(0.0, 1.5 * nyq, 31), dtype=np.float64)
+    freqs_cpd = np.union1d(freqs_cpd, [nyq])
+    i_nyq = int(np.argmin(np.abs(freqs_cpd - nyq)))
+
+    D = np.array(model.depths)[subs.k]  # (S,)
+    ok = bundle.ok
+    r = spot.retinal_tan(bundle.pos, bundle.slopes(), D[:, None, None])
+    par = _paraxial(model, subs, sets.rho)
+    r_par = par[..., 2:4] - par[..., 0:2] * (D[:, None, None, None] / 1000.0)
+    sl = sets.slices
+
+    # GD (Eq. 11): chief ray of the EI's centre field (field 0).
+    chief_ok = ok[:, :, sl["chief"]][..., 0]
+    gd = distortion.gd_deg(r[:, 0, sl["chief"]][:, 0], r_par[:, 0, sl["chief"]][:, 0])
+    local = distortion.local_distortion(r[:, :, sl["chief"]][:, :, 0], r_par[:, :, sl["chief"]][:, :, 0])
+    # PA (Eq. 12): four marginal rays per field.
+    d_v = np.array([np.mean(states[k].d_v) for k in subs.k])
+    marg_ok = np.all(ok[:, :, sl["marginal"]], axis=-1)
+    pa = footprint.pa(bundle.pos[:, :, sl["marginal"]], par[:, :, sl["marginal"], 0:2], d_v[:, None])
+    # RMS spot and geometric MTF (quadrature), with the convergence check n → 2n.
+    rms, cen, off = spot.rms_spot(r[:, :, sl["gl2"]], sets.weights["gl2"], ok[:, :, sl["gl2"]])
+    rms_n, _, _ = spot.rms_spot(r[:, :, sl["gl"]], sets.weights["gl"], ok[:, :, sl["gl"]])
+    geo = mtf.geometric_mtf(off, sets.weights["gl2"], ok[:, :, sl["gl2"]], freqs_cpd * CPD_TO_CPR)
+    # Diffraction MTF from the optical path over the stop grid.
+    g = sl["mtf"]
+    opd, pup, _ = mtf.reference_opd(bundle.pos[:, :, g], bundle.dir[:, :, g], bundle.opl[:, :, g],
+                                    ok[:, :, g], cen, D[:, None])
+    if opd_method(model) == "slopes":
+        off_g = spot.angular_offsets(r[:, :, g], cen)
+        opd = mtf.wavefront_from_slopes(sets.rho[g], pup, off_g, ok[:, :, g])
+    dif = mtf.diffraction_mtf(sets.rho[g], pup, opd, ok[:, :, g], model.lam, freqs_cpd * CPD_TO_CPR)
+    contrast = np.min(dif[..., i_nyq, :], axis=-1)
+    wf_rms = np.sqrt(np.sum(np.where(ok[:, :, g], opd, 0) ** 2, axis=-1)
+                     / np.maximum(np.sum(ok[:, :, g], axis=-1), 1)) / (model.lam * 1e-6)
+    vignetted = 1.0 - np.mean(ok[:, :, sl["gl2"]], axis=-1)
+    t_all = time.perf_counter() - t0
+    return dict(model=model, subs=subs, sets=sets, bundle=bundle, states=states, r=r, r_par=r_par,
+                par=par, gd=gd, local=local, pa=pa, pa_ok=marg_ok, chief_ok=chief_ok, rms=rms, rms_n=rms_n,
+                geo=geo, dif=dif, contrast=contrast, wf_rms=wf_rms, vignetted=vignetted,
+                freqs_cpd=freqs_cpd, nyquist_cpd=nyq, i_nyq=i_nyq, t_trace=t_trace, t_all=t_all)
+
+
+def _f(v) -> float | None:
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
+def summarize(res: dict) -> dict:
+    """The ``metrics.json`` document (DESIGN.md contract plus per-sub-system details)."""
+    model, subs, spec = res["model"], res["subs"], res["model"].spec
+    arcmin = spot.ARCMIN
+    pa_sub = np.max(res["pa"], axis=1)
+    subsystems = []
+    for i in range(len(subs)):
+        k = int(subs.k[i])
+        subsystems.append({
+            "m": int(subs.m[i]) + 1, "n": int(subs.n[i]) + 1, "depth_diopters": model.depths[k],
+            "gd_deg": _f(res["gd"][i]), "pa_max": _f(pa_sub[i]), "pa_mean": _f(np.mean(res["pa"][i])),
+            "contrast_nyquist": _f(np.min(res["contrast"][i])),
+            "contrast_nyquist_fields": [_f(v) for v in res["contrast"][i]],
+            "rms_spot_arcmin": [_f(v * arcmin) for v in res["rms"][i]],
+            "local_distortion_pct_max": _f(100 * np.max(res["local"][i])),
+            "wavefront_rms_waves": [_f(v) for v in res["wf_rms"][i]],
+            "vignetted_fraction": [_f(v) for v in res["vignetted"][i]],
+            "chief_ray_ok": bool(res["chief_ok"][i, 0]),
+            "marginal_rays_ok": bool(np.all(res["pa_ok"][i])),
+        })
+    by_depth = {}
+    for k, D in enumerate(model.depths):
+        sel = subs.k == k
+        if not np.any(sel):
+            continue
+        c = res["contrast"][sel]
+        by_depth[f"{D:g}"] = {
+            "contrast_nyquist_min": _f(np.min(c)), "contrast_nyquist_mean": _f(np.mean(c)),
+            "rms_spot_mean_arcmin": _f(np.mean(res["rms"][sel]) * arcmin),
+            "rms_spot_max_arcmin": _f(np.max(res["rms"][sel]) * arcmin),
+            "gd_max_deg": _f(np.max(res["gd"][sel])), "gd_mean_deg": _f(np.mean(res["gd"][sel])),
+            "pa_max": _f(np.max(pa_sub[sel])), "pa_mean": _f(np.mean(res["pa"][sel])),
+            "first_order": res["states"][k].as_dict(),
+        }
+    conv = np.abs(res["rms"] - res["rms_n"])
+    summary = {
+        "gd_max_deg": _f(np.max(res["gd"])), "gd_mean_deg": _f(np.mean(res["gd"])),
+        "pa_max": _f(np.max(pa_sub)), "pa_mean": _f(np.mean(res["pa"])),
+        "pa_within_target": int(np.sum(pa_sub <= spec.pa_target)), "pa_target": spec.pa_target,
+        "gd_within_target": int(np.sum(res["gd"] <= spec.gd_target_deg)), "gd_target_deg": spec.gd_target_deg,
+        "subsystems_evaluated": len(subs),
+        "lenslets_evaluated": len({(int(a), int(b)) for a, b in zip(subs.m, subs.n)}),
+        "fields_per_subsystem": int(subs.fields.shape[0]), "nyquist_cpd": _f(res["nyquist_cpd"]),
+        "contrast_nyquist_min": _f(np.min(res["contrast"])), "contrast_nyquist_mean": _f(np.mean(res["contrast"])),
+        "rms_spot_mean_arcmin": _f(np.mean(res["rms"]) * arcmin),
+        "local_distortion_pct_max": _f(100 * np.max(res["local"])),
+        "rays_failed": int(np.sum(~res["bundle"].ok[:, :, res["sets"].slices["gl2"]])),
+        "rms_spot_quadrature_error_arcmin": _f(np.max(conv) * arcmin),
+        "aim_error_mm": _f(res["bundle"].aim_error),
+        "rays_traced": int(res["bundle"].status.size),
+        "trace_s": round(res["t_trace"], 3), "wall_s": round(res["t_all"], 3),
+    }
+    return {"design": model.design.name, "file": model.file, "wavelength_nm": model.lam,
+            "summary": summary, "by_depth": by_depth, "subsystems": subsystems,
+            "mtf_frequencies_cpd": [float(v) for v in res["freqs_cpd"]]}

@@ -1,0 +1,209 @@
+"""Sub-systems of an InI-HMD (Section 3): lenslet × elemental image × CDP depth.
+
+Every sampled sub-system (m, n, depth) × field point × pupil sample becomes one
+ray; all of them are traced in a single Dr.Jit launch (split only to bound
+memory), with each ray carrying its lenslet index (the tracer forces it through
+that lenslet and flags crosstalk) and its parameter block (the CDP state: the
+tunable lens's power). Rays go from the display toward the viewing window, as
+in the method, and are aimed at their pupil point on each lenslet's stop by a
+few real-ray Newton steps (the paraxial stop map as the Jacobian).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import drjit as dr
+import numpy as np
+
+from ..backend import from_numpy
+from ..optics.tracer import RayState
+from .model import IniModel
+
+
+@dataclass
+class Subsystems:
+    """Sampled sub-systems (0-based lenslet indices) and their field points."""
+
+    m: np.ndarray  # (S,)
+    n: np.ndarray  # (S,)
+    k: np.ndarray  # (S,) CDP state index
+    fields: np.ndarray  # (F, 2) field fractions of the EI half-size, in [−1, 1]
+    center: np.ndarray  # (S, 2) lenslet centres, Eq. (1)
+    display: np.ndarray  # (S, F, 2) display points of the fields (EI centre + offset)
+
+    def __len__(self) -> int:
+        return len(self.m)
+
+
+def lenslet_indices(count: int, stride: int, keep_upper_half: bool) -> np.ndarray:
+    """0-based lenslet indices along one axis: every ``stride``-th, both ends included;
+    with symmetry only the upper half (centre included)."""
+    idx = list(range(0, count, stride))
+    if idx[-1] != count - 1:
+        idx.append(count - 1)
+    idx = np.array(idx)
+    if keep_upper_half:
+        idx = idx[2 * idx >= count - 1]
+        if (count - 1) % 2 == 0 and (count - 1) // 2 not in idx:
+            idx = np.concatenate([[(count - 1) // 2], idx])
+    return idx
+
+
+def field_grid(nf: int, fraction: float) -> np.ndarray:
+    """``nf × nf`` field fractions in [−fraction, fraction]² (the centre first when nf is odd)."""
+    v = np.linspace(-fraction, fraction, nf) if nf > 1 else np.zeros(1)
+    fx, fy = np.meshgrid(v, v, indexing="xy")
+    f = np.stack([fx.ravel(), fy.ravel()], axis=1)
+    order = np.argsort(np.hypot(f[:, 0], f[:, 1]), kind="stable")
+    return f[order]
+
+
+def sample(model: IniModel, stride=None, symmetry=None, depths=None, lenslets=None,
+           fields=None) -> Subsystems:
+    """Choose sub-systems and fields (defaults from the design's ``[ini.analysis]``).
+
+    Parameters
+    ----------
+    stride : (int, int)
+    symmetry : {"none", "x", "y", "xy"}
+        "x": the design is mirror-symmetric in x, evaluate lenslets with x ≥ 0 only.
+    depths : list of int, optional
+        CDP state indices (default all).
+    lenslets : list of (m, n), optional
+        Explicit 0-based lenslets (overrides stride and symmetry).
+    fields : (F, 2) array, optional
+        Field fractions (default: ``fields × fields`` grid at ``field_fraction``).
+    """
+    spec, arr = model.spec, model.arr
+    stride = stride or spec.stride
+    symmetry = symmetry or spec.symmetry
+    depths = list(range(len(model.depths))) if depths is None else list(depths)
+    if lenslets is None:
+        mi = lenslet_indices(arr.m, stride[0], "x" in symmetry)
+        ni = lenslet_indices(arr.n, stride[1], "y" in symmetry)
+        mm, nn = np.meshgrid(mi, ni, indexing="xy")
+        lenslets = np.stack([mm.ravel(), nn.ravel()], axis=1)
+    lenslets = np.asarray(lenslets, dtype=np.int64).reshape(-1, 2)
+    if fields is None:
+        fields = field_grid(spec.fields, spec.field_fraction)
+    fields = np.asarray(fields, dtype=np.float64).reshape(-1, 2)
+    m = np.tile(lenslets[:, 0], len(depths))
+    n = np.tile(lenslets[:, 1], len(depths))
+    k = np.repeat(np.array(depths, dtype=np.int64), len(lenslets))
+    center = model.lenslet_center(m, n)
+    display = np.empty((len(m), len(fields), 2))
+    ppe = np.array(spec.pixels_per_ei, dtype=np.float64)
+    for kk in set(k.tolist()):
+        sel = k == kk
+        s0 = model.ei_centers(kk, m[sel], n[sel])
+        # Outer fields at the centre of the edge pixel: half an EI less half a pixel.
+        half = 0.5 * model.ei_pitch(kk) * (1.0 - 1.0 / ppe)
+        display[sel] = s0[:, None, :] + fields[None, :, :] * half
+    return Subsystems(m, n, k, fields, center, display)
+
+
+@dataclass
+class Bundle:
+    """Rays of sub-systems × fields × pupil samples at the viewing window (VW frame).
+
+    Shapes: (S, F, R, ...). ``pos`` (x, y) on the VW plane, ``dir`` unit
+    direction (+z toward the eye), ``opl`` optical path from the display point
+    (mm), ``status`` (0 = reached the VW), ``rho`` (R, 2) the pupil samples.
+    """
+
+    subs: Subsystems
+    rho: np.ndarray
+    pos: np.ndarray
+    dir: np.ndarray
+    opl: np.ndarray
+    status: np.ndarray
+    aim_error: float  # largest stop miss of a traced ray after aiming (mm)
+
+    @property
+    def ok(self) -> np.ndarray:
+        return self.status == 0
+
+    def slopes(self) -> np.ndarray:
+        return self.dir[..., :2] / self.dir[..., 2:3]
+
+
+def trace(model: IniModel, subs: Subsystems, rho: np.ndarray, aim_iterations: int = 8,
+          max_rays: int = 2_000_000, progress=None) -> Bundle:
+    """Trace every (sub-system, field, pupil sample) ray to the viewing window.
+
+    ``rho`` (R, 2) are pupil points in units of the stop half-widths. Launches
+    hold at most ``max_rays`` rays (whole sub-systems each).
+    """
+    rho = np.asarray(rho, dtype=np.float64).reshape(-1, 2)
+    S, F, R = len(subs), subs.display.shape[1], len(rho)
+    per_sub = F * R
+    step = max(1, max_rays // per_sub)
+    pos = np.empty((S, F, R, 2))
+    dirs = np.empty((S, F, R, 3))
+    opl = np.empty((S, F, R))
+    status = np.empty((S, F, R), dtype=np.int64)
+    worst = 0.0
+    for a in range(0, S, step):
+        b = min(S, a + step)
+        out = _trace_chunk(model, subs, slice(a, b), rho, aim_iterations)
+        pos[a:b], dirs[a:b], opl[a:b], status[a:b], err = out
+        worst = max(worst, err)
+        if progress is not None:
+            progress(b - a)
+    return Bundle(subs, rho, pos, dirs, opl, status, worst)
+
+
+def _trace_chunk(model: IniModel, subs: Subsystems, sl: slice, rho: np.ndarray, iterations: int):
+    tr, T = model.tracer, model.T
+    sp = model.spec
+    s = subs.display[sl]  # (s, F, 2)
+    c = subs.center[sl]
+    ns, F, R = s.shape[0], s.shape[1], len(rho)
+    shape = (ns, F, R)
+    s_r = np.broadcast_to(s[:, :, None, :], shape + (2,)).reshape(-1, 2)
+    c_r = np.broadcast_to(c[:, None, None, :], shape + (2,)).reshape(-1, 2)
+    rho_r = np.broadcast_to(rho[None, None, :, :], shape + (2,)).reshape(-1, 2)
+    m_r = np.broadcast_to(subs.m[sl][:, None, None], shape).ravel().astype(np.int32)
+    n_r = np.broadcast_to(subs.n[sl][:, None, None], shape).ravel().astype(np.int32)
+    k_r = np.broadcast_to(subs.k[sl][:, None, None], shape).ravel().astype(np.uint32)
+    t = model.aim(s_r, c_r, rho_r)
+    target = rho_r * model.stop_half
+    JSt_inv = np.linalg.inv(model.JS[:, 2:])
+    P = tr.params(values=model.values())
+    block = from_numpy(T.UInt32, k_r)
+    lens = from_numpy(T.Int32, m_r, n_r)
+    z0 = -model.g
+    frames = tr.frames_numpy()
+    R_s, o_s = frames[sp.stop]
+    err = np.zeros(len(t))
+    with dr.suspend_grad():
+        for _ in range(iterations):
+            o = np.column_stack([s_r, np.full(len(t), z0)])
+            d = np.column_stack([t, np.ones(len(t))])
+            out = tr.trace(P, tr.rays(o, d), block=block, lenslet=lens, first=0, last=sp.stop)
+            hit = np.stack([np.asarray(out.p.x), np.asarray(out.p.y), np.asarray(out.p.z)], axis=1)
+            local = (hit - o_s) @ R_s
+            miss = local[:, :2] - c_r - target
+            alive = np.asarray(out.status) == 0
+            err = np.where(alive[:, None], miss, 0.0)
+            if np.max(np.abs(err)) < 1e-13:
+                break
+            t = t - err @ JSt_inv.T
+        o = np.column_stack([s_r, np.full(len(t), z0)])
+        d = np.column_stack([t, np.ones(len(t))])
+        out = tr.trace(P, tr.rays(o, d), block=block, lenslet=lens, first=0, last=sp.viewing_window)
+        dr.eval(out.p, out.d, out.opl, out.status)
+        p = np.stack([np.asarray(out.p.x), np.asarray(out.p.y), np.asarray(out.p.z)], axis=1)
+        dd = np.stack([np.asarray(out.d.x), np.asarray(out.d.y), np.asarray(out.d.z)], axis=1)
+        opl = np.asarray(out.opl, dtype=np.float64)
+        status = np.asarray(out.status).astype(np.int64)
+    pl = (p - model.o_vw) @ model.R_vw
+    dl = dd @ model.R_vw
+    ok = status == 0
+    pl = np.where(ok[:, None], pl, 0.0)
+    dl = np.where(ok[:, None], dl, np.array([0.0, 0.0, 1.0]))
+    opl = np.where(ok, opl, 0.0)
+    worst = float(np.max(np.abs(err[ok]))) if np.any(ok) else 0.0
+    return (pl[:, :2].reshape(shape + (2,)), dl.reshape(shape + (3,)), opl.reshape(shape),
+            status.reshape(shape), worst)

@@ -1,0 +1,16 @@
+"""Footprints on the viewing window and the pupil-aberration metric PA (Eq. 12)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def pa(real: np.ndarray, paraxial: np.ndarray, d_v: float) -> np.ndarray:
+    """Eq. (12): ``PA = ¼ Σ_k |v_k − v'_k| / (√2·d_v)``.
+
+    ``real``, ``paraxial``: (..., 4, 2) viewing-window positions of the four
+    marginal rays (the stop's edge midpoints) of one field; ``d_v`` the
+    paraxial footprint diameter (Eq. 5), so √2·d_v is the footprint's diagonal.
+    """
+    dev = np.hypot(*np.moveaxis(np.asarray(real) - np.asarray(paraxial), -1, 0))
+    return np.mean(dev, axis=-1) / (np.sqrt(2.0) * d_v)

@@ -1,0 +1,197 @@
+"""MTF in visual angle: geometric (from the ray spot) and diffraction (from the optical path).
+
+Frequencies are in cycles per radian of visual angle (``cpd·180/π``); the two
+orientations are horizontal (x) and vertical (y) bars, i.e. modulation along
+the spot's angular axes 0 and 1 (see :func:`lfsim.metrics.spot.angular_offsets`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.ndimage import map_coordinates
+
+from .spot import _basis
+
+
+def geometric_mtf(offsets: np.ndarray, weights: np.ndarray, ok: np.ndarray, freqs: np.ndarray) -> np.ndarray:
+    """Geometric MTF ``|Σ w e^{−2πi ν δ}| / Σ w`` of angular ray offsets δ (rad).
+
+    ``offsets`` (..., R, 2), ``weights`` (R,) quadrature rule, ``ok`` (..., R),
+    ``freqs`` (K,) cycles/rad. Returns (..., K, 2): axis −1 is the orientation
+    (modulation along x, along y).
+    """
+    w = np.where(ok, weights, 0.0)
+    wsum = np.sum(w, axis=-1)
+    out = np.empty(offsets.shape[:-2] + (len(freqs), 2))
+    for a in range(2):
+        ph = np.exp(-2j * np.pi * offsets[..., None, :, a] * np.asarray(freqs)[:, None])
+        s = np.einsum("...r,...kr->...k", w, ph)
+        out[..., a] = np.abs(s) / np.where(wsum > 0, wsum, 1.0)[..., None]
+    return out
+
+
+def reference_opd(pos: np.ndarray, dirs: np.ndarray, opl: np.ndarray, ok: np.ndarray,
+                  r_center: np.ndarray, diopters) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Optical path difference to the reference sphere about the CDP image point.
+
+    The eye is focused on the CDP at ``D`` diopters (z_CDP = 1000/D in front of
+    the viewing window), so the ideal wave leaving the window diverges from the
+    point ``Q = −z_CDP·(r̄, 1)`` seen in direction ``r̄`` (the spot centroid). Each
+    ray is carried from its window point ``h`` along its direction to the
+    sphere about Q through the bundle's centre ``X0`` (the stable root of
+    ``|h + s·d − Q| = |X0 − Q|``, which tends to the plane-wave form at 0 D);
+    OPD = OPL + s, piston removed.
+
+    Shapes: ``pos`` (..., R, 2) on the window plane, ``dirs`` (..., R, 3),
+    ``opl`` (..., R), ``ok`` (..., R), ``r_center`` (..., 2).
+    Returns ``(opd_mm (..., R), pupil (..., R, 2), u (..., 3))``: OPD, the ray
+    positions projected on the plane normal to the reference direction ``u``
+    (axes as in :func:`angular_offsets`), and ``u``.
+    """
+    D = np.asarray(diopters, dtype=np.float64)[..., None] / 1000.0  # (..., 1)
+    w8 = ok.astype(np.float64)
+    n_ok = np.maximum(np.sum(w8, axis=-1, keepdims=True), 1.0)
+    X0 = np.sum(pos * w8[..., None], axis=-2) / n_ok  # (..., 2)
+    a = np.concatenate([X0 * D + r_center, np.ones(X0.shape[:-1] + (1,))], axis=-1)
+    alen = np.linalg.norm(a, axis=-1, keepdims=True)
+    u = a / alen
+    c = D / alen[..., 0:1] if D.ndim else D / alen  # 1/|X0 − Q|, (..., 1)
+    wv = np.concatenate([pos - X0[..., None, :], np.zeros(pos.shape[:-1] + (1,))], axis=-1)
+    dw = np.sum(dirs * wv, axis=-1)
+    ud = np.einsum("...rk,...k->...r", dirs, u)
+    uw = np.einsum("...rk,...k->...r", wv, u)
+    ww = np.sum(wv * wv, axis=-1)
+    bq = c * dw + ud
+    cq = c * ww + 2.0 * uw
+    s = -cq / (bq + np.sqrt(np.maximum(bq * bq - c * cq, 0.0)))
+    opd = opl + s
+    opd = opd - np.sum(opd * w8, axis=-1, keepdims=True) / n_ok
+    opd = np.where(ok, opd, 0.0)
+    _, e1, e2 = _basis(u[..., :2] / u[..., 2:3])
+    pupil = np.stack([np.einsum("...rk,...k->...r", wv, e1), np.einsum("...rk,...k->...r", wv, e2)], axis=-1)
+    return opd, pupil, u
+
+
+def affine_fit(rho: np.ndarray, pupil: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """Least-squares affine maps ``pupil ≈ A·ρ + b`` per bundle: A (L, 2, 2).
+
+    ``rho`` (R, 2), ``pupil`` (L, R, 2), ``ok`` (L, R). Fully traced bundles
+    share one pseudo-inverse; vignetted ones are solved on their own rays.
+    """
+    X = np.column_stack([rho, np.ones(len(rho))])
+    A = np.tile(np.eye(2), (len(pupil), 1, 1))
+    full = np.all(ok, axis=-1)
+    if np.any(full):
+        coef = np.einsum("kr,lrc->lkc", np.linalg.pinv(X), pupil[full])  # (L, 3, 2)
+        A[full] = np.swapaxes(coef[:, :2, :], 1, 2)
+    for j in np.flatnonzero(~full):
+        sel = ok[j]
+        if sel.sum() >= 3:
+            coef, *_ = np.linalg.lstsq(X[sel], pupil[j][sel], rcond=None)
+            A[j] = coef[:2].T
+    return A
+
+
+def diffraction_mtf(rho: np.ndarray, pupil: np.ndarray, opd_mm: np.ndarray, ok: np.ndarray,
+                    wavelength_nm: float, freqs: np.ndarray, chunk: int = 256) -> np.ndarray:
+    """Diffraction MTF from the optical path across the lenslet's square stop.
+
+    ``rho`` (n², 2) is the :func:`~lfsim.metrics.pupil.mtf_grid` of the stop;
+    ``pupil`` (..., n², 2) the rays' positions projected normal to the beam
+    (mm), ``opd_mm`` (..., n²) and ``ok`` (..., n²). The pupil function
+    ``P = ok·exp(2πi·OPD/λ)`` on the stop grid is autocorrelated by FFT (zero
+    padded to 2n); the map from stop coordinates to the projected pupil is
+    taken as the least-squares affine fit of the traced positions (pupil
+    distortion beyond affine is neglected, as lens-design programs' FFT MTF
+    does), so a visual frequency ν (cycles/rad) along axis a is the shift
+    ``Δρ = A⁻¹·λν·e_a`` of the autocorrelation, read by bilinear interpolation.
+    Returns (..., K, 2) like :func:`geometric_mtf`. A diffraction-limited
+    square pupil of width w gives ``1 − ν λ / w`` exactly.
+    """
+    n = int(round(np.sqrt(len(rho))))
+    lead = opd_mm.shape[:-1]
+    L = int(np.prod(lead)) if lead else 1
+    pup = pupil.reshape(L, n * n, 2)
+    opd = opd_mm.reshape(L, n * n)
+    okf = ok.reshape(L, n * n)
+    lam = wavelength_nm * 1e-6
+    freqs = np.asarray(freqs, dtype=np.float64)
+    out = np.zeros((L, len(freqs), 2))
+    A_all = affine_fit(rho, pup, okf)
+    for a0 in range(0, L, chunk):
+        a1 = min(L, a0 + chunk)
+        okc = okf[a0:a1]
+        P = np.where(okc, np.exp(2j * np.pi * opd[a0:a1] / lam), 0.0).reshape(-1, n, n)
+        F = np.fft.fft2(P, s=(2 * n, 2 * n))
+        ac = np.fft.ifft2(np.abs(F) ** 2)  # autocorrelation, zero shift at [0, 0]
+        norm = np.sum(okc, axis=-1).astype(np.float64)
+        ac = np.fft.fftshift(ac, axes=(-2, -1)) / np.where(norm > 0, norm, 1.0)[:, None, None]
+        for j in range(a1 - a0):
+            if okc[j].sum() < 3:
+                continue
+            Ainv = np.linalg.inv(A_all[a0 + j])
+            for ax in range(2):
+                shift = lam * freqs[:, None] * np.eye(2)[ax][None, :]  # (K, 2) mm
+                drho = shift @ Ainv.T  # (K, 2) in ρ units
+                cells = drho * (n / 2.0)  # grid cells (x, y)
+                coords = np.array([n + cells[:, 1], n + cells[:, 0]])
+                re = map_coordinates(ac[j].real, coords, order=1, mode="constant", cval=0.0)
+                im = map_coordinates(ac[j].imag, coords, order=1, mode="constant", cval=0.0)
+                out[a0 + j, :, ax] = np.hypot(re, im)
+    return out.reshape(lead + (len(freqs), 2))
+
+
+def _legendre_terms(degree: int):
+    return [(i, j) for t in range(1, degree + 1) for i in range(t + 1) for j in (t - i,)]
+
+
+def wavefront_from_slopes(rho: np.ndarray, pupil: np.ndarray, offsets: np.ndarray, ok: np.ndarray,
+                          degree: int = 10) -> np.ndarray:
+    """Wavefront (mm) whose gradient is the rays' angular aberration (Malus–Dupin).
+
+    Every ray is normal to the wavefront, so across the projected pupil ``p``
+    the wavefront's slope equals the ray's angular offset from the reference
+    direction: ``∇_p W = δ``. With the affine stop → pupil map ``p = Aρ + b``
+    (least squares over the rays) this is ``∇_ρ W = Aᵀδ``, fitted in least
+    squares by Legendre products ``P_i(ρx)·P_j(ρy)``, ``1 ≤ i + j ≤ degree``.
+    This gives the optical path of designs with ideal (paraxial) elements,
+    whose ray mapping is perfect for every conjugate but cannot carry one
+    optical-path term that is right for all of them; for real surfaces it
+    agrees with the traced OPL (see the tests).
+
+    Shapes: ``rho`` (R, 2), ``pupil`` (..., R, 2) mm, ``offsets`` (..., R, 2)
+    rad, ``ok`` (..., R). Returns (..., R) with piston removed, 0 where not ok.
+    """
+    from numpy.polynomial import legendre as L
+
+    terms = _legendre_terms(degree)
+    Vx = L.legvander(rho[:, 0], degree)
+    Vy = L.legvander(rho[:, 1], degree)
+    dVx = np.stack([L.legval(rho[:, 0], L.legder(np.eye(degree + 1)[i])) for i in range(degree + 1)], axis=1)
+    dVy = np.stack([L.legval(rho[:, 1], L.legder(np.eye(degree + 1)[i])) for i in range(degree + 1)], axis=1)
+    val = np.stack([Vx[:, i] * Vy[:, j] for i, j in terms], axis=1)
+    gx = np.stack([dVx[:, i] * Vy[:, j] for i, j in terms], axis=1)
+    gy = np.stack([Vx[:, i] * dVy[:, j] for i, j in terms], axis=1)
+    lead = ok.shape[:-1]
+    Lc = int(np.prod(lead)) if lead else 1
+    pup = pupil.reshape(Lc, -1, 2)
+    off = offsets.reshape(Lc, -1, 2)
+    okf = ok.reshape(Lc, -1)
+    A = affine_fit(rho, pup, okf)
+    g = np.einsum("lra,lab->lrb", off, A)  # Aᵀδ per ray: dW/dρ
+    M = np.concatenate([gx, gy])
+    W = np.zeros(okf.shape)
+    full = np.all(okf, axis=-1)
+    if np.any(full):
+        a = np.einsum("tr,lr->lt", np.linalg.pinv(M), np.concatenate([g[full, :, 0], g[full, :, 1]], axis=1))
+        W[full] = a @ val.T
+    for j in np.flatnonzero(~full):
+        sel = okf[j]
+        if sel.sum() < len(terms) // 2 + 3:
+            continue
+        a, *_ = np.linalg.lstsq(np.concatenate([gx[sel], gy[sel]]),
+                                np.concatenate([g[j, sel, 0], g[j, sel, 1]]), rcond=None)
+        W[j] = val @ a
+    W = W - (np.sum(W * okf, axis=-1, keepdims=True) / np.maximum(np.sum(okf, axis=-1, keepdims=True), 1))
+    W = np.where(okf, W, 0.0)
+    return W.reshape(ok.shape)
