@@ -142,8 +142,37 @@ def cmd_layout(args) -> int:
     return 0
 
 
+def cmd_ini_design(args) -> int:
+    from .ini.model import IniModel
+
+    model = IniModel(load(args.design))
+    states = [model.state(k).as_dict() for k in range(len(model.depths))]
+    doc = {"design": model.design.name, "file": args.design, "p_mla": list(model.arr.pitch),
+           "g": model.g, "m": model.arr.m, "n": model.arr.n, "states": states}
+    if args.json:
+        print(_dump(doc))
+        return 0
+    print(f"{model.design.name}: InI first-order model (Eqs. 1-10 from the design's own maps)")
+    print(f"  {model.arr.m} x {model.arr.n} lenslets, pitch {model.arr.pitch[0]:g} mm, display gap {model.g:g} mm")
+    for st in states:
+        print(f"  CDP {st['diopters']:g} D:")
+        for k, v in st.items():
+            if k != "diopters":
+                print(f"    {k:22s} {v}")
+    return 0
+
+
 def cmd_ini(args) -> int:
     from .ini.first_order import IniInputError, ini_first_order
+
+    if args.design is not None:
+        return cmd_ini_design(args)
+    missing = [f"--{k.replace('_', '-')}" for k in ("p_mla", "g", "z_xp", "f_ep", "m", "n")
+               if getattr(args, k) is None]
+    if args.l is None and args.f_mla is None:
+        missing.append("--l or --f-mla")
+    if missing:
+        raise InputError(f"lfsim ini: give a design file or the inputs {', '.join(missing)}")
 
     if args.z_ic is not None and args.cdp_diopters is not None:
         ref = ini_first_order(args.p_mla, args.g, args.f_ep, args.z_xp, args.m, args.n,
@@ -170,6 +199,56 @@ def cmd_ini(args) -> int:
     return 0
 
 
+def _int_pair(text, flag):
+    try:
+        a, b = (int(v) for v in text.split(","))
+    except ValueError:
+        raise InputError(f"{flag} = {text!r}: expected two integers SX,SY") from None
+    if a < 1 or b < 1:
+        raise InputError(f"{flag} = {text!r}: strides must be >= 1")
+    return a, b
+
+
+def _float_list(text, flag):
+    try:
+        vals = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise InputError(f"{flag} = {text!r}: expected numbers separated by commas") from None
+    if not all(math.isfinite(v) for v in vals):
+        raise InputError(f"{flag} = {text!r}: expected finite numbers")
+    return vals
+
+
+def cmd_analyze(args) -> int:
+    from .analysis.ini_analysis import analyze
+
+    design = load(args.design)
+    if design.ini is None:
+        raise InputError(f"{args.design}: ini = missing: lfsim analyze needs an [ini] section")
+    stride = _int_pair(args.stride, "--stride") if args.stride else None
+    depths = _float_list(args.depths, "--depths") if args.depths else None
+    doc = analyze(design, args.out, stride=stride, symmetry=args.symmetry, depths_diopters=depths,
+                  progress=sys.stderr.isatty() and not args.json, plots=not args.no_plots)
+    if args.json:
+        print(_dump(doc))
+        return 0
+    s = doc["summary"]
+    print(f"{doc['design']}: {s['subsystems_evaluated']} sub-systems x {s['fields_per_subsystem']} fields "
+          f"({s['rays_traced']} rays) in {s['wall_s']:.1f} s (trace {s['trace_s']:.1f} s)")
+    print(f"  GD (Eq. 11)  max {s['gd_max_deg']:.4f} deg, mean {s['gd_mean_deg']:.4f} deg "
+          f"({s['gd_within_target']} within {s['gd_target_deg']:g} deg)")
+    print(f"  PA (Eq. 12)  max {s['pa_max']:.4f}, mean {s['pa_mean']:.4f} "
+          f"({s['pa_within_target']} sub-systems within {s['pa_target']:g})")
+    print(f"  contrast at Nyquist {s['nyquist_cpd']:.2f} cpd: min {s['contrast_nyquist_min']:.3f}, "
+          f"mean {s['contrast_nyquist_mean']:.3f}")
+    for D, b in doc["by_depth"].items():
+        print(f"  CDP {D} D: contrast min {b['contrast_nyquist_min']:.3f} mean {b['contrast_nyquist_mean']:.3f}, "
+              f"RMS spot mean {b['rms_spot_mean_arcmin']:.3f}' max {b['rms_spot_max_arcmin']:.3f}', "
+              f"GD max {b['gd_max_deg']:.3f} deg, PA max {b['pa_max']:.3f}")
+    print(f"wrote {args.out}/metrics.json" + (", " + ", ".join(doc.get("plots", [])) if doc.get("plots") else ""))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="lfsim", description=__doc__.split("\n")[0])
     p.add_argument("--version", action="version", version=f"lfsim {__version__}")
@@ -191,21 +270,32 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--json", action="store_true")
     f.set_defaults(func=cmd_first_order)
 
-    ini = sub.add_parser("ini", help="InI-HMD first-order model (Eqs. 1-10) from explicit inputs")
-    ini.add_argument("--p-mla", type=float, required=True, help="lenslet pitch (mm)")
-    ini.add_argument("--g", type=float, required=True, help="display to MLA gap (mm)")
-    mla = ini.add_mutually_exclusive_group(required=True)
+    ini = sub.add_parser("ini", help="InI-HMD first-order model (Eqs. 1-10) of a design or explicit inputs")
+    ini.add_argument("design", nargs="?", help="design file with an [ini] section")
+    ini.add_argument("--p-mla", type=float, help="lenslet pitch (mm)")
+    ini.add_argument("--g", type=float, help="display to MLA gap (mm)")
+    mla = ini.add_mutually_exclusive_group()
     mla.add_argument("--l", type=float, help="MLA to intermediate CDP (mm; inf allowed)")
     mla.add_argument("--f-mla", type=float, help="lenslet focal length (mm): l from 1/g + 1/l = 1/f")
     ini.add_argument("--z-ic", type=float, help="intermediate CDP to eyepiece (mm)")
     ini.add_argument("--d-mla-ep", type=float, help="MLA to eyepiece (mm), instead of --z-ic")
     ini.add_argument("--cdp-diopters", type=float, help="virtual CDP depth (D; 0 = infinity), instead of --z-ic")
-    ini.add_argument("--z-xp", type=float, required=True, help="eyepiece to viewing window (mm)")
-    ini.add_argument("--f-ep", type=float, required=True, help="eyepiece focal length (mm)")
-    ini.add_argument("--m", type=int, required=True, help="lenslets along x")
-    ini.add_argument("--n", type=int, required=True, help="lenslets along y")
+    ini.add_argument("--z-xp", type=float, help="eyepiece to viewing window (mm)")
+    ini.add_argument("--f-ep", type=float, help="eyepiece focal length (mm)")
+    ini.add_argument("--m", type=int, help="lenslets along x")
+    ini.add_argument("--n", type=int, help="lenslets along y")
     ini.add_argument("--json", action="store_true")
     ini.set_defaults(func=cmd_ini)
+
+    an = sub.add_parser("analyze", help="InI metrics (RMS, MTF, contrast, GD, PA, footprints) with plots")
+    an.add_argument("design")
+    an.add_argument("--out", required=True, help="output directory (metrics.json and PNGs)")
+    an.add_argument("--stride", help="evaluate every k-th lenslet: SX,SY (default from [ini.analysis])")
+    an.add_argument("--symmetry", choices=("none", "x", "y", "xy"), help="skip mirror-image lenslets")
+    an.add_argument("--depths", help="CDP depths to evaluate, diopters, comma separated (default all)")
+    an.add_argument("--no-plots", action="store_true")
+    an.add_argument("--json", action="store_true")
+    an.set_defaults(func=cmd_analyze)
 
     lay = sub.add_parser("layout", help="layout and spot-diagram pictures plus a summary")
     lay.add_argument("design")

@@ -184,3 +184,37 @@ def summarize(res: dict) -> dict:
     return {"design": model.design.name, "file": model.file, "wavelength_nm": model.lam,
             "summary": summary, "by_depth": by_depth, "subsystems": subsystems,
             "mtf_frequencies_cpd": [float(v) for v in res["freqs_cpd"]]}
+
+
+def analyze(design, out_dir=None, stride=None, symmetry=None, depths_diopters=None,
+            progress: bool = False, plots: bool = True) -> dict:
+    """Evaluate every sampled sub-system and write ``metrics.json`` and the plots.
+
+    ``depths_diopters`` restricts the CDP states (values from the design's
+    list). Returns the metrics document (also written to ``out_dir``).
+    """
+    from pathlib import Path
+
+    from ..fileio import write_json
+    from . import ini_plots
+
+    model = IniModel(design)
+    depths = None
+    if depths_diopters is not None:
+        depths = []
+        for D in depths_diopters:
+            hit = [k for k, v in enumerate(model.depths) if abs(v - D) < 1e-9]
+            if not hit:
+                raise ValueError(f"--depths: {D:g} D is not a CDP depth of {model.file} "
+                                 f"({', '.join(f'{v:g}' for v in model.depths)})")
+            depths.append(hit[0])
+    subs = sample(model, stride=stride, symmetry=symmetry, depths=depths)
+    res = evaluate(model, subs, progress=progress)
+    doc = summarize(res)
+    if out_dir is not None:
+        out = Path(out_dir)
+        if plots:
+            doc["plots"] = ini_plots.write_all(res, out)
+        doc["summary"]["wall_s"] = round(res["t_all"], 3)
+        write_json(out / "metrics.json", doc)
+    return doc
