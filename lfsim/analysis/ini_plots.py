@@ -31,8 +31,9 @@ def _plt():
     return plt
 
 
-def _pick_depth(model, prefer=1.0) -> int:
-    return int(np.argmin(np.abs(np.array(model.depths) - prefer)))
+def _pick_depth(model, prefer=1.0, subs=None) -> int:
+    ks = np.arange(len(model.depths)) if subs is None else np.unique(subs.k)
+    return int(ks[np.argmin(np.abs(np.array(model.depths)[ks] - prefer))])
 
 
 def _nearest(subs, k, m, n) -> int | None:
@@ -50,7 +51,7 @@ def _angles(r):
 def contrast_map(res, path, k=None):
     plt = _plt()
     model, subs = res["model"], res["subs"]
-    k = _pick_depth(model) if k is None else k
+    k = _pick_depth(model, subs=subs) if k is None else k
     sel = subs.k == k
     chief = res["sets"].slices["chief"]
     pos = _angles(res["r_par"][sel][:, :, chief][:, :, 0])  # (S, F, 2) degrees
@@ -91,7 +92,7 @@ def _mtf_plot(res, picks, path, title):
 
 def mtf_lenslets(res, path, k=None):
     model, subs = res["model"], res["subs"]
-    k = _pick_depth(model) if k is None else k
+    k = _pick_depth(model, subs=subs) if k is None else k
     M, N = model.arr.m, model.arr.n
     picks = []
     for m, n in ((M // 2, N // 2), (0, 0), (M - 1, 0)):
@@ -116,9 +117,10 @@ def distortion_grid(res, path):
     plt = _plt()
     model, subs = res["model"], res["subs"]
     chief = res["sets"].slices["chief"]
-    nd = len(model.depths)
+    ks = [int(k) for k in np.unique(subs.k)]
+    nd = len(ks)
     fig, axes = plt.subplots(1, nd, figsize=(5.2 * nd, 4.2), dpi=130, squeeze=False)
-    for k, ax in enumerate(axes[0]):
+    for k, ax in zip(ks, axes[0]):
         sel = np.flatnonzero(subs.k == k)
         par = _angles(res["r_par"][sel, 0, chief][:, 0])
         real = _angles(res["r"][sel, 0, chief][:, 0])
@@ -142,7 +144,7 @@ def distortion_grid(res, path):
 def footprints(res, path, k=None):
     plt = _plt()
     model, subs = res["model"], res["subs"]
-    k = _pick_depth(model) if k is None else k
+    k = _pick_depth(model, subs=subs) if k is None else k
     per = res["sets"].slices["perimeter"]
     M, N = model.arr.m, model.arr.n
     wanted = [(m, n) for n in (0, N // 2, N - 1) for m in (0, M // 2, M - 1)]

@@ -154,6 +154,8 @@ def wavefront_from_slopes(rho: np.ndarray, pupil: np.ndarray, offsets: np.ndarra
     direction: ``∇_p W = δ``. With the affine stop → pupil map ``p = Aρ + b``
     (least squares over the rays) this is ``∇_ρ W = Aᵀδ``, fitted in least
     squares by Legendre products ``P_i(ρx)·P_j(ρy)``, ``1 ≤ i + j ≤ degree``.
+    On a fully traced grid the local Jacobian ``∂p/∂ρ`` (pupil distortion
+    included) replaces A, by second-order finite differences along the grid.
     This gives the optical path of designs with ideal (paraxial) elements,
     whose ray mapping is perfect for every conjugate but cannot carry one
     optical-path term that is right for all of them; for real surfaces it
@@ -178,10 +180,19 @@ def wavefront_from_slopes(rho: np.ndarray, pupil: np.ndarray, offsets: np.ndarra
     off = offsets.reshape(Lc, -1, 2)
     okf = ok.reshape(Lc, -1)
     A = affine_fit(rho, pup, okf)
-    g = np.einsum("lra,lab->lrb", off, A)  # Aᵀδ per ray: dW/dρ
+    J = np.broadcast_to(A[:, None], (Lc, len(rho), 2, 2)).copy()  # ∂p/∂ρ per ray
+    n = int(round(np.sqrt(len(rho))))
+    full = np.all(okf, axis=-1)
+    if n * n == len(rho) and n >= 3 and np.any(full):
+        # Fully traced grids: the local Jacobian (pupil distortion included), by
+        # second-order differences along the grid (ρ spacing 2/n).
+        grid = pup[full].reshape(-1, n, n, 2)
+        dx = np.gradient(grid, 2.0 / n, axis=2, edge_order=2)
+        dy = np.gradient(grid, 2.0 / n, axis=1, edge_order=2)
+        J[full] = np.stack([dx, dy], axis=-1).reshape(-1, n * n, 2, 2)
+    g = np.einsum("lra,lrab->lrb", off, J)  # Jᵀδ per ray: dW/dρ
     M = np.concatenate([gx, gy])
     W = np.zeros(okf.shape)
-    full = np.all(okf, axis=-1)
     if np.any(full):
         a = np.einsum("tr,lr->lt", np.linalg.pinv(M), np.concatenate([g[full, :, 0], g[full, :, 1]], axis=1))
         W[full] = a @ val.T
