@@ -60,16 +60,20 @@ def test_geometric_mtf_of_uniform_line_spread():
 
 
 def test_rms_spot_and_quadrature():
-    """Linear aberration δ = a·ρ over the square: RMS = a·sqrt(2/3) exactly with Gauss–Legendre."""
+    """Linear aberration δ = a·ρ over the square: RMS = a·sqrt(2/3) exactly with Gauss–Legendre,
+    on axis and, the same bundle rotated 20° off axis, in angle (not in tangents)."""
+    from scipy.spatial.transform import Rotation
+
     nodes, w = pupil.gauss_legendre_square(4)
     a = 1e-3
-    r = np.array([0.2, -0.1]) + a * nodes  # tangents about an off-axis direction
-    rms, cen, _ = spot.rms_spot(r[None], w, np.ones((1, len(w)), bool))
-    # Gnomonic angles about the centre direction: the tangent-plane spot scales by cos terms.
-    c = np.array([0.2, -0.1, 1.0]) / np.linalg.norm([0.2, -0.1, 1.0])
-    assert np.allclose(cen[0], [0.2, -0.1], atol=1e-15)
-    assert rms[0] == pytest.approx(a * math.sqrt(2 / 3) * c[2] * np.sqrt(1 - 0.5 * (1 - c[2] ** 2) * 0) , rel=3e-2)
-    none = spot.rms_spot(r[None], w, np.zeros((1, len(w)), bool))[0]
+    ok = np.ones((1, len(w)), bool)
+    rms, cen, _ = spot.rms_spot(a * nodes[None], w, ok)
+    assert rms[0] == pytest.approx(a * math.sqrt(2 / 3), rel=1e-12)
+    v = np.column_stack([np.tan(a * nodes), np.ones(len(w))])
+    v = Rotation.from_euler("xy", [12.0, 16.0], degrees=True).apply(v / np.linalg.norm(v, axis=1)[:, None])
+    rms2, _, _ = spot.rms_spot((v[:, :2] / v[:, 2:])[None], w, ok)
+    assert rms2[0] == pytest.approx(a * math.sqrt(2 / 3), rel=1e-5)
+    none = spot.rms_spot(a * nodes[None], w, np.zeros((1, len(w)), bool))[0]
     assert np.all(np.isfinite(none))
 
 
