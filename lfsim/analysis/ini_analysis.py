@@ -92,6 +92,8 @@ def evaluate(model: IniModel, subs=None, progress: bool = False, mtf_freqs_cpd=N
     par = _paraxial(model, subs, sets.rho)
     r_par = par[..., 2:4] - par[..., 0:2] * (D[:, None, None, None] / 1000.0)
     sl = sets.slices
+    if not np.allclose(subs.fields[0], 0.0):
+        raise ValueError("the first field must be the EI centre (0, 0): GD (Eq. 11) is measured there")
 
     # GD (Eq. 11): chief ray of the EI's centre field (field 0).
     chief_ok = ok[:, :, sl["chief"]][..., 0]

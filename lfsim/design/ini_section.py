@@ -176,6 +176,8 @@ def parse_ini(ctx, data: dict, system: System) -> IniSpec | None:
                         "pa_target", "gd_target_deg"}, "ini.analysis")
     if "fields" in an:
         spec.fields = ctx.integer(an, "fields", "ini.analysis", 1)
+        if spec.fields % 2 == 0:
+            raise ctx.err("ini.analysis.fields", spec.fields, "must be odd (the EI centre is a field)")
     spec.field_fraction = ctx.number(an, "field_fraction", "ini.analysis", 1.0, positive=True)
     if spec.field_fraction > 1:
         raise ctx.err("ini.analysis.field_fraction", spec.field_fraction, "must be in (0, 1]")
