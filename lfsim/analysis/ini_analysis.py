@@ -131,17 +131,32 @@ def _f(v) -> float | None:
     return v if math.isfinite(v) else None
 
 
+def _masked(fn, values, valid):
+    """``fn`` over the valid entries; None when there are none (a failed ray has no metric)."""
+    v = np.asarray(values)[np.asarray(valid)]
+    return _f(fn(v)) if v.size else None
+
+
 def summarize(res: dict) -> dict:
-    """The ``metrics.json`` document (DESIGN.md contract plus per-sub-system details)."""
+    """The ``metrics.json`` document (DESIGN.md contract plus per-sub-system details).
+
+    GD needs the centre field's chief ray and PA a field's four marginal rays;
+    where those failed (vignetted, crosstalk) the value is left out of every
+    statistic and reported as null, and the failures are counted.
+    """
     model, subs, spec = res["model"], res["subs"], res["model"].spec
     arcmin = spot.ARCMIN
-    pa_sub = np.max(res["pa"], axis=1)
+    pa_ok, gd_ok = res["pa_ok"], res["chief_ok"][:, 0]
+    pa_sub = np.max(np.where(pa_ok, res["pa"], -np.inf), axis=1)
+    sub_ok = np.any(pa_ok, axis=1)
     subsystems = []
     for i in range(len(subs)):
         k = int(subs.k[i])
         subsystems.append({
             "m": int(subs.m[i]) + 1, "n": int(subs.n[i]) + 1, "depth_diopters": model.depths[k],
-            "gd_deg": _f(res["gd"][i]), "pa_max": _f(pa_sub[i]), "pa_mean": _f(np.mean(res["pa"][i])),
+            "gd_deg": _f(res["gd"][i]) if gd_ok[i] else None,
+            "pa_max": _f(pa_sub[i]) if sub_ok[i] else None,
+            "pa_mean": _masked(np.mean, res["pa"][i], pa_ok[i]),
             "contrast_nyquist": _f(np.min(res["contrast"][i])),
             "contrast_nyquist_fields": [_f(v) for v in res["contrast"][i]],
             "rms_spot_arcmin": [_f(v * arcmin) for v in res["rms"][i]],
@@ -161,16 +176,20 @@ def summarize(res: dict) -> dict:
             "contrast_nyquist_min": _f(np.min(c)), "contrast_nyquist_mean": _f(np.mean(c)),
             "rms_spot_mean_arcmin": _f(np.mean(res["rms"][sel]) * arcmin),
             "rms_spot_max_arcmin": _f(np.max(res["rms"][sel]) * arcmin),
-            "gd_max_deg": _f(np.max(res["gd"][sel])), "gd_mean_deg": _f(np.mean(res["gd"][sel])),
-            "pa_max": _f(np.max(pa_sub[sel])), "pa_mean": _f(np.mean(res["pa"][sel])),
+            "gd_max_deg": _masked(np.max, res["gd"][sel], gd_ok[sel]),
+            "gd_mean_deg": _masked(np.mean, res["gd"][sel], gd_ok[sel]),
+            "pa_max": _masked(np.max, pa_sub[sel], sub_ok[sel]),
+            "pa_mean": _masked(np.mean, res["pa"][sel], pa_ok[sel]),
             "first_order": res["states"][k].as_dict(),
         }
     conv = np.abs(res["rms"] - res["rms_n"])
     summary = {
-        "gd_max_deg": _f(np.max(res["gd"])), "gd_mean_deg": _f(np.mean(res["gd"])),
-        "pa_max": _f(np.max(pa_sub)), "pa_mean": _f(np.mean(res["pa"])),
-        "pa_within_target": int(np.sum(pa_sub <= spec.pa_target)), "pa_target": spec.pa_target,
-        "gd_within_target": int(np.sum(res["gd"] <= spec.gd_target_deg)), "gd_target_deg": spec.gd_target_deg,
+        "gd_max_deg": _masked(np.max, res["gd"], gd_ok), "gd_mean_deg": _masked(np.mean, res["gd"], gd_ok),
+        "pa_max": _masked(np.max, pa_sub, sub_ok), "pa_mean": _masked(np.mean, res["pa"], pa_ok),
+        "pa_within_target": int(np.sum(sub_ok & (pa_sub <= spec.pa_target))), "pa_target": spec.pa_target,
+        "gd_within_target": int(np.sum(gd_ok & (res["gd"] <= spec.gd_target_deg))),
+        "gd_target_deg": spec.gd_target_deg,
+        "gd_failed": int(np.sum(~gd_ok)), "pa_fields_failed": int(np.sum(~pa_ok)),
         "subsystems_evaluated": len(subs),
         "lenslets_evaluated": len({(int(a), int(b)) for a, b in zip(subs.m, subs.n)}),
         "fields_per_subsystem": int(subs.fields.shape[0]), "nyquist_cpd": _f(res["nyquist_cpd"]),

@@ -131,7 +131,8 @@ def distortion_grid(res, path):
                 line = line[np.argsort(other[line])]
                 ax.plot(par[line, 0], par[line, 1], color="k", lw=0.7)
         ax.plot(real[:, 0], real[:, 1], "*", color="tab:blue", ms=5)
-        gd = res["gd"][sel]
+        gd = res["gd"][sel][res["chief_ok"][sel, 0]]
+        gd = gd if gd.size else np.zeros(1)
         ax.set_title(f"CDP {model.depths[k]:g} D: GD max {np.max(gd):.3f}°, mean {np.mean(gd):.3f}°", fontsize=9)
         ax.set_xlabel("horizontal (deg)")
         ax.set_ylabel("vertical (deg)")
@@ -170,7 +171,8 @@ def footprints(res, path, k=None):
     ax.set_aspect("equal")
     ax.set_xlabel("viewing window x (mm)")
     ax.set_ylabel("viewing window y (mm)")
-    pa = res["pa"][subs.k == k]
+    pa = res["pa"][subs.k == k][res["pa_ok"][subs.k == k]]
+    pa = pa if pa.size else np.zeros(1)
     ax.set_title(f"Footprints on the viewing window, CDP {model.depths[k]:g} D\n"
                  f"paraxial (black) vs real; PA max {np.max(pa):.3f}, mean {np.mean(pa):.3f}; "
                  f"eye pupil {2 * r:g} mm (dotted)", fontsize=9)

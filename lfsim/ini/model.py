@@ -295,12 +295,12 @@ class IniModel:
         return state[..., 2:4] - state[..., 0:2] * (self.depths[k] / 1000.0)
 
     def ei_centers(self, k: int, m, n) -> np.ndarray:
-        """Display position (..., 2) of the centre of EI (m, n) (Eqs. 2 and 4, generalized):
-        its chief ray through the lenslet's stop centre crosses the viewing-window centre.
+        """Display position (..., 2) of the centre of EI (m, n) in CDP state ``k``
+        (Eqs. 2 and 4, generalized): its paraxial chief ray through the
+        lenslet's stop centre crosses the viewing-window centre.
 
-        Solved in the state ``k``; the layout is fixed, so it is evaluated in the
-        first state (the states differ only behind the MLA, where Eq. (2) depends
-        on z'_xp only through the group — evaluated here for each state)."""
+        With a tunable lens inside the eyepiece group the layout depends on the
+        state (Eq. 2 through z'_xp), so EIs are laid out per state."""
         c = self.lenslet_center(m, n)
         # VW position of the chief ray is affine in s: pos = a0 + As·(s − c).
         zero = np.zeros_like(c)

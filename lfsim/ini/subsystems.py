@@ -128,7 +128,7 @@ class Bundle:
         return self.dir[..., :2] / self.dir[..., 2:3]
 
 
-def trace(model: IniModel, subs: Subsystems, rho: np.ndarray, aim_iterations: int = 8,
+def trace(model: IniModel, subs: Subsystems, rho: np.ndarray, aim_iterations: int = 30,
           max_rays: int = 2_000_000, progress=None) -> Bundle:
     """Trace every (sub-system, field, pupil sample) ray to the viewing window.
 
@@ -181,7 +181,7 @@ def _trace_chunk(model: IniModel, subs: Subsystems, sl: slice, rho: np.ndarray, 
         for _ in range(iterations):
             o = np.column_stack([s_r, np.full(len(t), z0)])
             d = np.column_stack([t, np.ones(len(t))])
-            out = tr.trace(P, tr.rays(o, d), block=block, lenslet=lens, first=0, last=sp.stop)
+            out = tr.trace(P, tr.rays(o, d), block=block, lenslet=lens, first=0, last=sp.stop, clip=False)
             hit = np.stack([np.asarray(out.p.x), np.asarray(out.p.y), np.asarray(out.p.z)], axis=1)
             local = (hit - o_s) @ R_s
             miss = local[:, :2] - c_r - target

@@ -55,7 +55,7 @@ def reference_opd(pos: np.ndarray, dirs: np.ndarray, opl: np.ndarray, ok: np.nda
     a = np.concatenate([X0 * D + r_center, np.ones(X0.shape[:-1] + (1,))], axis=-1)
     alen = np.linalg.norm(a, axis=-1, keepdims=True)
     u = a / alen
-    c = D / alen[..., 0:1] if D.ndim else D / alen  # 1/|X0 − Q|, (..., 1)
+    c = D / alen  # 1/|X0 − Q|, (..., 1)
     wv = np.concatenate([pos - X0[..., None, :], np.zeros(pos.shape[:-1] + (1,))], axis=-1)
     dw = np.sum(dirs * wv, axis=-1)
     ud = np.einsum("...rk,...k->...r", dirs, u)

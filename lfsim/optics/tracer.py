@@ -214,7 +214,7 @@ class SequentialTracer:
 
     # ---------------------------------------------------------------- trace
     def trace(self, P, rays: RayState, block=None, lenslet=None, record: bool = False,
-              first: int = 0, last: int | None = None) -> TraceOutput:
+              first: int = 0, last: int | None = None, clip: bool = True) -> TraceOutput:
         """Trace ``rays`` through every surface; see the module docstring.
 
         Parameters
@@ -237,6 +237,9 @@ class SequentialTracer:
             Trace only surfaces ``first..last`` (inclusive; default: all), for
             rays given in the global frame in front of surface ``first`` and
             in the medium before it. Used for first-order data of a group.
+        clip : bool
+            Apply clear apertures and lenslet cells (default). ``False`` lets
+            rays through them, e.g. to aim a ray at a point on an aperture's edge.
         """
         T = self.T
         n = dr.width(rays.p)
@@ -336,7 +339,7 @@ class SequentialTracer:
             hit = dr.fma(dl, t, pl)
 
             # Apertures (in lenslet-relative coordinates inside an array).
-            ap = s.aperture
+            ap = s.aperture if clip else None
             if ap is not None:
                 ax, ay = hit.x - ap.decenter[0], hit.y - ap.decenter[1]
                 slack = 1.0 + self.edge_tol
@@ -346,7 +349,7 @@ class SequentialTracer:
                     outside = ((dr.abs(ax) > ap.half_width[0] * slack)
                                | (dr.abs(ay) > ap.half_width[1] * slack))
                 fail(outside, Status.VIGNETTED, i)
-            if offset is not None:
+            if offset is not None and clip:
                 half = 0.5 * (1.0 + self.edge_tol)
                 crossed = (dr.abs(hit.x) > half * px) | (dr.abs(hit.y) > half * py)
                 fail(crossed, Status.WRONG_LENSLET, i)
