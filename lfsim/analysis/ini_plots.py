@@ -63,8 +63,8 @@ def contrast_map(res, path, k=None):
     ax.set_xlabel("horizontal visual angle (deg)")
     ax.set_ylabel("vertical visual angle (deg)")
     ax.set_aspect("equal")
-    ax.set_title(f"{model.design.name}: contrast at Nyquist, CDP {model.depths[k]:g} D\n"
-                 f"min {np.min(c):.3f}, mean {np.mean(c):.3f} over {c.size} fields")
+    ax.set_title(f"{model.design.name}\ncontrast at Nyquist, CDP {model.depths[k]:g} D: "
+                 f"min {np.min(c):.3f}, mean {np.mean(c):.3f} over {c.size} fields", fontsize=9)
     save_figure(fig, path, bbox_inches="tight")
     plt.close(fig)
 
