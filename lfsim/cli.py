@@ -227,8 +227,14 @@ def cmd_analyze(args) -> int:
         raise InputError(f"{args.design}: ini = missing: lfsim analyze needs an [ini] section")
     stride = _int_pair(args.stride, "--stride") if args.stride else None
     depths = _float_list(args.depths, "--depths") if args.depths else None
+    reference = None
+    if args.reference:
+        reference = load(args.reference)
+        if reference.ini is None:
+            raise InputError(f"{args.reference}: ini = missing: a --reference design needs an [ini] section")
     doc = analyze(design, args.out, stride=stride, symmetry=args.symmetry, depths_diopters=depths,
-                  progress=sys.stderr.isatty() and not args.json, plots=not args.no_plots)
+                  progress=sys.stderr.isatty() and not args.json, plots=not args.no_plots,
+                  reference=reference)
     if args.json:
         print(_dump(doc))
         return 0
@@ -293,6 +299,7 @@ def build_parser() -> argparse.ArgumentParser:
     an.add_argument("--stride", help="evaluate every k-th lenslet: SX,SY (default from [ini.analysis])")
     an.add_argument("--symmetry", choices=("none", "x", "y", "xy"), help="skip mirror-image lenslets")
     an.add_argument("--depths", help="CDP depths to evaluate, diopters, comma separated (default all)")
+    an.add_argument("--reference", help="nominal design: GD and PA against its display layout and paraxial rays")
     an.add_argument("--no-plots", action="store_true")
     an.add_argument("--json", action="store_true")
     an.set_defaults(func=cmd_analyze)

@@ -186,3 +186,41 @@ def test_edge_rays_of_curved_lenslets_are_aimed_onto_the_stop(scenes):
     s = summarize(res)["summary"]
     assert s["pa_fields_failed"] == int(np.sum(~res["pa_ok"]))
     assert s["pa_max"] == pytest.approx(np.max(res["pa"][res["pa_ok"]]))
+
+
+def test_gd_and_pa_against_a_nominal_reference(scenes, tmp_path):
+    """A decentred ideal eyepiece deflects every ray by δ/f: measured against the
+    nominal design, GD = atan|δ/f − δ·D| (chief ray, Eq. 11) and every footprint
+    moves by z_xp·δ/f = δ on the viewing window, PA = δ/(√2·d_v) (Eq. 12).
+    Measured against itself, the shift is part of the reference and GD = PA = 0."""
+    import tomllib
+
+    delta, f_ep = 0.1, 31.0
+    data = tomllib.loads((scenes / "ini_ideal.toml").read_text())
+    nominal = lfsim.Design.from_dict(data)
+    data["surfaces"][2]["decenter"] = [delta, 0.0]  # EP; the VW keeps the nominal axis
+    moved = lfsim.Design.from_dict(data)
+    ref, model = IniModel(nominal), IniModel(moved)
+    subs = sample(ref, stride=(8, 4))
+    res = evaluate(model, subs, reference=ref)
+    D = np.array(ref.depths)[subs.k]
+    gd_expect = np.degrees(np.arctan(np.abs(delta / f_ep - delta * D / 1000.0)))
+    np.testing.assert_allclose(res["gd"], gd_expect, rtol=1e-9, atol=1e-12)
+    d_v = np.array([np.mean(ref.state(k).d_v) for k in subs.k])
+    np.testing.assert_allclose(res["pa"], np.broadcast_to((delta / (math.sqrt(2) * d_v))[:, None],
+                                                          res["pa"].shape), rtol=1e-9)
+    own = evaluate(model, sample(model, stride=(8, 4)))
+    assert np.max(own["gd"]) < 1e-9 and np.max(own["pa"]) < 1e-9
+    # The CLI flag; a reference with other CDP depths is refused (exit 2).
+    text = (scenes / "ini_ideal.toml").read_text()
+    ep = 'focal_length = 31.0\nthickness = 31.0'
+    assert ep in text
+    (tmp_path / "moved.toml").write_text(text.replace(ep, ep + "\ndecenter = [0.1, 0.0]"))
+    (tmp_path / "other.toml").write_text(text.replace("cdp_diopters = [0.0, 1.0, 3.0]",
+                                                      "cdp_diopters = [0.0, 2.0]"))
+    args = ["analyze", str(tmp_path / "moved.toml"), "--stride", "8,4", "--no-plots", "--depths", "0"]
+    assert main(args + ["--out", str(tmp_path / "a"), "--reference", str(scenes / "ini_ideal.toml")]) == 0
+    doc = json.loads((tmp_path / "a" / "metrics.json").read_text())
+    assert doc["summary"]["gd_max_deg"] == pytest.approx(math.degrees(math.atan(delta / f_ep)), rel=1e-9)
+    assert main(args + ["--out", str(tmp_path / "b"), "--reference", str(tmp_path / "other.toml")]) == 2
+    assert not (tmp_path / "b" / "metrics.json").exists()

@@ -64,10 +64,26 @@ def _paraxial(model: IniModel, subs, rho: np.ndarray) -> np.ndarray:
     return out
 
 
-def evaluate(model: IniModel, subs=None, progress: bool = False, mtf_freqs_cpd=None) -> dict:
-    """Trace and measure; returns a dict of numpy arrays and the summary (see :func:`analyze`)."""
+def evaluate(model: IniModel, subs=None, progress: bool = False, mtf_freqs_cpd=None,
+             reference: IniModel | None = None) -> dict:
+    """Trace and measure; returns a dict of numpy arrays and the summary (see :func:`analyze`).
+
+    ``reference``: the nominal design's model. By default a design is its own
+    paraxial reference, linearized about its own axis ray, so a uniform
+    deflection (a decentred or tilted element, a pupil tilt) moves the
+    reference with the rays and GD/PA do not see it. With a reference, the
+    display layout (EI centres, ``subs`` when not given), the paraxial rays of
+    GD (Eq. 11) and PA (Eq. 12) and the footprint width d_v are the nominal
+    design's, as in a tolerance analysis of built hardware that shows the
+    nominal elemental images. The CDP depths of both must match.
+    """
     spec = model.spec
-    subs = subs if subs is not None else sample(model)
+    ref = model if reference is None else reference
+    if reference is not None and (len(ref.depths) != len(model.depths)
+                                  or not np.allclose(ref.depths, model.depths)):
+        raise ValueError(f"the reference {ref.file} has CDP depths {ref.depths}, "
+                         f"the design {model.file} has {model.depths}")
+    subs = subs if subs is not None else sample(ref)
     sets = PupilSets.build(spec.pupil, spec.mtf_grid)
     t0 = time.perf_counter()
     bar = None
@@ -79,7 +95,7 @@ def evaluate(model: IniModel, subs=None, progress: bool = False, mtf_freqs_cpd=N
     if bar:
         bar.close()
     t_trace = time.perf_counter() - t0
-    states = [model.state(k) for k in range(len(model.depths))]
+    states = [ref.state(k) for k in range(len(ref.depths))]
     nyq = max(s.nyquist_cpd for s in states)
     freqs_cpd = np.asarray(mtf_freqs_cpd if mtf_freqs_cpd is not None
                            else np.linspace(0.0, 1.5 * nyq, 31), dtype=np.float64)
@@ -89,7 +105,7 @@ def evaluate(model: IniModel, subs=None, progress: bool = False, mtf_freqs_cpd=N
     D = np.array(model.depths)[subs.k]  # (S,)
     ok = bundle.ok
     r = spot.retinal_tan(bundle.pos, bundle.slopes(), D[:, None, None])
-    par = _paraxial(model, subs, sets.rho)
+    par = _paraxial(ref, subs, sets.rho)
     r_par = par[..., 2:4] - par[..., 0:2] * (D[:, None, None, None] / 1000.0)
     sl = sets.slices
     if not np.allclose(subs.fields[0], 0.0):
@@ -208,11 +224,13 @@ def summarize(res: dict) -> dict:
 
 
 def analyze(design, out_dir=None, stride=None, symmetry=None, depths_diopters=None,
-            progress: bool = False, plots: bool = True) -> dict:
+            progress: bool = False, plots: bool = True, reference=None) -> dict:
     """Evaluate every sampled sub-system and write ``metrics.json`` and the plots.
 
     ``depths_diopters`` restricts the CDP states (values from the design's
-    list). Returns the metrics document (also written to ``out_dir``).
+    list). ``reference``: a nominal Design whose display layout and paraxial
+    rays GD and PA are measured against (see :func:`evaluate`). Returns the
+    metrics document (also written to ``out_dir``).
     """
     from pathlib import Path
 
@@ -220,6 +238,7 @@ def analyze(design, out_dir=None, stride=None, symmetry=None, depths_diopters=No
     from . import ini_plots
 
     model = IniModel(design)
+    ref = IniModel(reference) if reference is not None else model
     depths = None
     if depths_diopters is not None:
         depths = []
@@ -229,9 +248,11 @@ def analyze(design, out_dir=None, stride=None, symmetry=None, depths_diopters=No
                 raise ValueError(f"--depths: {D:g} D is not a CDP depth of {model.file} "
                                  f"({', '.join(f'{v:g}' for v in model.depths)})")
             depths.append(hit[0])
-    subs = sample(model, stride=stride, symmetry=symmetry, depths=depths)
-    res = evaluate(model, subs, progress=progress)
+    subs = sample(ref, stride=stride, symmetry=symmetry, depths=depths)
+    res = evaluate(model, subs, progress=progress, reference=None if ref is model else ref)
     doc = summarize(res)
+    if ref is not model:
+        doc["reference"] = ref.file
     if out_dir is not None:
         out = Path(out_dir)
         if plots:
