@@ -361,3 +361,48 @@ class IniModel:
             pixel_arcmin=tuple(60.0 * p for p in pix_deg),
             nyquist_cpd=float(1.0 / (2.0 * max(pix_deg))),
         )
+
+
+def model_at_depth(design, diopters: float, wavelength_nm: float | None = None,
+                   precision: str = "float64") -> IniModel:
+    """An :class:`IniModel` with the single CDP state ``diopters``.
+
+    With a tunable lens, its power is the design's given powers interpolated
+    linearly in diopters when the design lists them (the powers it was
+    optimized with, at best focus), else solved paraxially. Without one, the
+    geometry's own depth must match (as for any design).
+    """
+    import copy
+    from dataclasses import replace
+
+    spec = design.ini
+    if spec is None:
+        raise DesignError(design.path or "<dict>", "ini", None, "the design has no [ini] section")
+    D = float(diopters)
+    if not (math.isfinite(D) and D >= 0.0):
+        raise DesignError(design.path or "<dict>", "cdp_diopters", diopters, "expected a depth >= 0 D")
+    powers = None
+    if spec.tunable is not None and spec.tunable_power_diopters is not None:
+        depths = np.asarray(spec.cdp_diopters, dtype=np.float64)
+        order = np.argsort(depths)
+        given = np.asarray(spec.tunable_power_diopters, dtype=np.float64)[order]
+        if len(depths) == 1:
+            powers = [float(given[0])]
+        else:
+            # linear in diopters, extrapolated with the end segments' slopes
+            d, p = depths[order], given
+            i = int(np.clip(np.searchsorted(d, D) - 1, 0, len(d) - 2))
+            powers = [float(p[i] + (p[i + 1] - p[i]) * (D - d[i]) / (d[i + 1] - d[i]))]
+    clone = copy.copy(design)
+    if spec.tunable is None:
+        if spec.cdp_diopters is not None and abs(spec.cdp_diopters[0] - D) > 1e-9:
+            raise DesignError(design.path or "<dict>", "cdp_diopters", D,
+                              f"the design has no tunable lens: its CDP is at {spec.cdp_diopters[0]:g} D")
+        clone.ini = spec
+    else:
+        clone.ini = replace(spec, cdp_diopters=[D], tunable_power_diopters=powers)
+    model = IniModel(clone, wavelength_nm=wavelength_nm, precision=precision)
+    if spec.tunable is None and abs(model.depths[0] - D) > 0.01:
+        raise DesignError(design.path or "<dict>", "cdp_diopters", D,
+                          f"the design has no tunable lens: its CDP is at {model.depths[0]:.4g} D")
+    return model

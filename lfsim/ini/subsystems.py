@@ -155,8 +155,6 @@ def trace(model: IniModel, subs: Subsystems, rho: np.ndarray, aim_iterations: in
 
 
 def _trace_chunk(model: IniModel, subs: Subsystems, sl: slice, rho: np.ndarray, iterations: int):
-    tr, T = model.tracer, model.T
-    sp = model.spec
     s = subs.display[sl]  # (s, F, 2)
     c = subs.center[sl]
     ns, F, R = s.shape[0], s.shape[1], len(rho)
@@ -164,9 +162,35 @@ def _trace_chunk(model: IniModel, subs: Subsystems, sl: slice, rho: np.ndarray, 
     s_r = np.broadcast_to(s[:, :, None, :], shape + (2,)).reshape(-1, 2)
     c_r = np.broadcast_to(c[:, None, None, :], shape + (2,)).reshape(-1, 2)
     rho_r = np.broadcast_to(rho[None, None, :, :], shape + (2,)).reshape(-1, 2)
-    m_r = np.broadcast_to(subs.m[sl][:, None, None], shape).ravel().astype(np.int32)
-    n_r = np.broadcast_to(subs.n[sl][:, None, None], shape).ravel().astype(np.int32)
-    k_r = np.broadcast_to(subs.k[sl][:, None, None], shape).ravel().astype(np.uint32)
+    m_r = np.broadcast_to(subs.m[sl][:, None, None], shape).ravel()
+    n_r = np.broadcast_to(subs.n[sl][:, None, None], shape).ravel()
+    k_r = np.broadcast_to(subs.k[sl][:, None, None], shape).ravel()
+    pl, dl, opl, status, worst = trace_rays(model, s_r, m_r, n_r, rho_r, k_r, iterations)
+    return (pl.reshape(shape + (2,)), dl.reshape(shape + (3,)), opl.reshape(shape),
+            status.reshape(shape), worst)
+
+
+def trace_rays(model: IniModel, s, m, n, rho, k, iterations: int = 30):
+    """Aim and trace flat ray lists from the display to the viewing window.
+
+    Ray i leaves display point ``s[i]`` (x, y) through the point ``rho[i]``
+    (units of the stop half-widths, 0 = the stop centre: the chief ray) of
+    lenslet (``m[i]``, ``n[i]``) (0-based) in CDP state ``k[i]``. The slope is
+    first aimed paraxially, then by real-ray Newton steps on the stop hit.
+
+    Returns ``(pos (N, 2), dir (N, 3), opl (N,), status (N,), aim_error)``: the
+    viewing-window position and unit direction in the viewing-window frame
+    (failed rays: 0 and +z), the optical path (mm), the tracer status, and the
+    largest stop miss of a surviving ray (mm).
+    """
+    tr, T = model.tracer, model.T
+    sp = model.spec
+    s_r = np.asarray(s, dtype=np.float64).reshape(-1, 2)
+    rho_r = np.broadcast_to(np.asarray(rho, dtype=np.float64), s_r.shape)
+    m_r = np.broadcast_to(np.asarray(m), len(s_r)).astype(np.int32)
+    n_r = np.broadcast_to(np.asarray(n), len(s_r)).astype(np.int32)
+    k_r = np.broadcast_to(np.asarray(k), len(s_r)).astype(np.uint32)
+    c_r = model.lenslet_center(m_r, n_r)
     t = model.aim(s_r, c_r, rho_r)
     target = rho_r * model.stop_half
     JSt_inv = np.linalg.inv(model.JS[:, 2:])
@@ -205,5 +229,4 @@ def _trace_chunk(model: IniModel, subs: Subsystems, sl: slice, rho: np.ndarray, 
     dl = np.where(ok[:, None], dl, np.array([0.0, 0.0, 1.0]))
     opl = np.where(ok, opl, 0.0)
     worst = float(np.max(np.abs(err[ok]))) if np.any(ok) else 0.0
-    return (pl[:, :2].reshape(shape + (2,)), dl.reshape(shape + (3,)), opl.reshape(shape),
-            status.reshape(shape), worst)
+    return pl[:, :2], dl, opl, status, worst

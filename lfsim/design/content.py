@@ -1,0 +1,192 @@
+"""Content scene files: the 3D scene an InI-HMD shows, in visual space.
+
+Visual space is the viewing-window frame (see :mod:`lfsim.render`): origin at
+the viewing-window centre, the eye looks along −z, +x to the viewer's right,
++y up, millimetres; a point d mm in front of the eye is at z = −d. Objects are
+self-luminous textured quads (their radiance is the texture), so a render has
+no lighting noise and the natural view is the exact ground truth::
+
+    name = "slanted wall"
+    [view]                       # defaults for renders of this content (all optional)
+    design = "ini_coaxial.toml"  # path relative to this file
+    cdp_mm = 750.0               # CDP depth the display state is set to (inf allowed)
+    focus_mm = [600.0, 1000.0, 1400.0]
+    pupil_diameter = 3.0
+    background = [0.0, 0.0, 0.0] # radiance where a ray meets no object
+    [[objects]]
+    type = "quad"
+    corners = [[x0, y0, z0], [x1, y1, z1], [x2, y2, z2]]  # origin, +u end, +v end
+    texture = { type = "noise", feature_mm = 3.0, seed = 1 }
+    radiance = 1.0               # scale (or [r, g, b])
+
+Texture types: ``constant`` (1, so the quad shows its ``radiance``), ``noise`` (binary band-limited noise, ``feature_mm``, ``seed``,
+``texel_mm``), ``checker`` (``period_mm``), ``bars`` (vertical bars,
+``period_mm``), ``image`` (``path`` relative to the file, PNG/JPEG/EXR,
+sRGB decoded to linear). The quad's u axis runs along the texture's columns
+(left to right), v along its rows (bottom to top); its front (u × v) must
+face the eye.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import DesignError
+
+TEXTURES = ("constant", "noise", "checker", "bars", "image")
+
+
+@dataclass
+class Texture:
+    kind: str
+    params: dict
+
+
+@dataclass
+class Quad:
+    name: str
+    corners: np.ndarray  # (3, 3): origin, +u end, +v end
+    texture: Texture
+    radiance: tuple[float, float, float]
+
+    @property
+    def u(self) -> np.ndarray:
+        return self.corners[1] - self.corners[0]
+
+    @property
+    def v(self) -> np.ndarray:
+        return self.corners[2] - self.corners[0]
+
+
+@dataclass
+class ContentScene:
+    path: str
+    name: str
+    objects: list[Quad]
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    view: dict = field(default_factory=dict)
+
+
+def _num(file, key, v, positive=False, allow_inf=False):
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise DesignError(file, key, v, "expected a number")
+    v = float(v)
+    if math.isnan(v) or (math.isinf(v) and not allow_inf):
+        raise DesignError(file, key, v, "expected a finite number")
+    if positive and not v > 0:
+        raise DesignError(file, key, v, "expected a number > 0")
+    return v
+
+
+def _rgb(file, key, v):
+    if isinstance(v, (int, float)) and not isinstance(v, bool):
+        v = [v, v, v]
+    if not isinstance(v, list) or len(v) != 3:
+        raise DesignError(file, key, v, "expected a number or [r, g, b]")
+    out = tuple(_num(file, f"{key}[{i}]", x) for i, x in enumerate(v))
+    if min(out) < 0:
+        raise DesignError(file, key, v, "radiance must be >= 0")
+    return out
+
+
+def _texture(file, key, t, base: Path) -> Texture:
+    if not isinstance(t, dict):
+        raise DesignError(file, key, t, "expected a table { type = ... }")
+    kind = t.get("type")
+    if kind not in TEXTURES:
+        raise DesignError(file, f"{key}.type", kind, f"expected one of {', '.join(TEXTURES)}")
+    p = {}
+    if kind == "noise":
+        p["feature_mm"] = _num(file, f"{key}.feature_mm", t.get("feature_mm", 3.0), positive=True)
+        p["texel_mm"] = _num(file, f"{key}.texel_mm", t.get("texel_mm", p["feature_mm"] / 4), positive=True)
+        seed = t.get("seed", 0)
+        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+            raise DesignError(file, f"{key}.seed", seed, "expected an integer >= 0")
+        p["seed"] = seed
+    elif kind == "constant":
+        pass
+    elif kind in ("checker", "bars"):
+        p["period_mm"] = _num(file, f"{key}.period_mm", t.get("period_mm", 10.0), positive=True)
+    else:
+        src = t.get("path")
+        if not isinstance(src, str):
+            raise DesignError(file, f"{key}.path", src, "expected an image file path")
+        full = (base / src).resolve()
+        if not full.is_file():
+            raise DesignError(file, f"{key}.path", src, f"no such file ({full})")
+        p["path"] = str(full)
+    unknown = set(t) - set(p) - {"type"}
+    if unknown:
+        raise DesignError(file, f"{key}.{sorted(unknown)[0]}", t[sorted(unknown)[0]], "unknown key")
+    return Texture(kind, p)
+
+
+def load_content(path: str | Path) -> ContentScene:
+    """Load and validate a content scene file (errors name file, key and value)."""
+    path = Path(path)
+    file = str(path)
+    if not path.is_file():
+        raise DesignError(file, "", None, "content file not found")
+    try:
+        data = tomllib.loads(path.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise DesignError(file, "", None, f"not valid TOML ({e})") from None
+    return content_from_dict(data, file, path.parent)
+
+
+def content_from_dict(data: dict, file: str = "<dict>", base: Path = Path(".")) -> ContentScene:
+    objs = data.get("objects")
+    if not isinstance(objs, list) or not objs:
+        raise DesignError(file, "objects", objs, "expected at least one [[objects]] table")
+    out = []
+    for i, o in enumerate(objs):
+        key = f"objects[{i}]"
+        if not isinstance(o, dict):
+            raise DesignError(file, key, o, "expected a table")
+        if o.get("type", "quad") != "quad":
+            raise DesignError(file, f"{key}.type", o.get("type"), "expected \"quad\"")
+        c = o.get("corners")
+        if not (isinstance(c, list) and len(c) == 3 and all(isinstance(r, list) and len(r) == 3 for r in c)):
+            raise DesignError(file, f"{key}.corners", c, "expected three [x, y, z] points (mm)")
+        C = np.array([[_num(file, f"{key}.corners[{a}][{b}]", c[a][b]) for b in range(3)] for a in range(3)])
+        u, v = C[1] - C[0], C[2] - C[0]
+        nrm = np.cross(u, v)
+        if np.linalg.norm(nrm) < 1e-9 * max(np.linalg.norm(u) * np.linalg.norm(v), 1e-300):
+            raise DesignError(file, f"{key}.corners", c, "the three corners are collinear")
+        centre = C[0] + 0.5 * (u + v)
+        if np.dot(nrm, -centre) <= 0:
+            raise DesignError(file, f"{key}.corners", c, "the quad's front (u x v) faces away from "
+                              "the eye at the origin: swap the +u and +v corners")
+        tex = _texture(file, f"{key}.texture", o.get("texture", {"type": "checker"}), base)
+        rad = _rgb(file, f"{key}.radiance", o.get("radiance", 1.0))
+        out.append(Quad(str(o.get("name", f"object{i}")), C, tex, rad))
+    view = data.get("view", {})
+    if not isinstance(view, dict):
+        raise DesignError(file, "view", view, "expected a table")
+    v = {}
+    if "design" in view:
+        d = view["design"]
+        if not isinstance(d, str) or not (base / d).is_file():
+            raise DesignError(file, "view.design", d, "expected a design file path (relative to this file)")
+        v["design"] = str((base / d).resolve())
+    if "cdp_mm" in view:
+        v["cdp_mm"] = _num(file, "view.cdp_mm", view["cdp_mm"], positive=True, allow_inf=True)
+    if "focus_mm" in view:
+        f = view["focus_mm"]
+        if not isinstance(f, list) or not f:
+            raise DesignError(file, "view.focus_mm", f, "expected a list of distances (mm)")
+        v["focus_mm"] = [_num(file, f"view.focus_mm[{i}]", x, positive=True, allow_inf=True)
+                         for i, x in enumerate(f)]
+    if "pupil_diameter" in view:
+        v["pupil_diameter"] = _num(file, "view.pupil_diameter", view["pupil_diameter"], positive=True)
+    unknown = set(view) - set(v) - {"background"}
+    if unknown:
+        k = sorted(unknown)[0]
+        raise DesignError(file, f"view.{k}", view[k], "unknown key")
+    bg = _rgb(file, "view.background", view.get("background", 0.0))
+    return ContentScene(file, str(data.get("name", Path(file).stem)), out, bg, v)

@@ -1,0 +1,84 @@
+"""The analytic display path: eye rays traced back through the exact design.
+
+A ray that leaves the eye's pupil on the viewing window toward the eyepiece is
+traced backwards through the design's own surfaces (the sequential tracer of
+the metrics, :func:`lfsim.optics.reverse.reversed_system`) to the display
+plane, where it reads the display's radiance. No optics meshes are involved:
+this is the reference the mesh path is measured against. Rays that the real
+optics vignette (lenslet cells, clear apertures, a failed TIR) carry weight 0.
+RGB renders use one wavelength (the design's primary) for every channel.
+"""
+
+from __future__ import annotations
+
+import drjit as dr
+import numpy as np
+
+from .. import backend
+from ..optics.reverse import reversed_system
+from ..optics.tracer import RayState, SequentialTracer
+
+
+class ReverseOptics:
+    """The design of one CDP state, traced from the viewing window to the display.
+
+    Parameters
+    ----------
+    model : lfsim.ini.model.IniModel
+    k : int
+        CDP state (the tunable lens's power).
+    precision : str
+        ``"float32"`` (default: Mitsuba's RGB variants) or ``"float64"``.
+    """
+
+    def __init__(self, model, k: int = 0, precision: str = "float32"):
+        self.model = model
+        spec, system = model.spec, model.system
+        values = model.values(k)
+        frames = model.tracer.frames_numpy(model.tracer.params(values=values))
+        powers = {}
+        if spec.tunable is not None:
+            name = system.surfaces[spec.tunable].name
+            powers[name] = float(values[model.tracer.index[f"{name}.power"]])
+        self.system = reversed_system(system, frames, end_plane_z=-model.g, first=0,
+                                      last=spec.viewing_window - 1, powers=powers)
+        self.tracer = SequentialTracer(self.system, precision)
+        self.T = self.tracer.T
+        self.wavelength_nm = model.lam
+        self.R_vw = np.asarray(model.R_vw, dtype=np.float64)
+        self.o_vw = np.asarray(model.o_vw, dtype=np.float64)
+        self._P = None
+
+    def params(self):
+        if self._P is None:
+            self._P = self.tracer.params(self.wavelength_nm)
+        return self._P
+
+    def to_global(self, o_local, d_local):
+        """Viewing-window-frame Dr.Jit points/vectors to the global frame."""
+        T = self.T
+        R = T.Matrix3(*(float(v) for v in self.R_vw.ravel()))
+        return T.Array3(R @ T.Array3(o_local)) + T.Array3(*(float(v) for v in self.o_vw)), R @ T.Array3(d_local)
+
+    def to_display(self, o_local, d_local):
+        """Trace eye rays (viewing-window frame, heading −z) back to the display.
+
+        Returns ``(p, d, valid)``: the hit on the display plane and the
+        direction there (global frame, Dr.Jit) and whether the ray got
+        through every surface.
+        """
+        o, d = self.to_global(o_local, d_local)
+        out = self.tracer.trace(self.params(), RayState(o, d))
+        return out.p, out.d, out.status == 0
+
+    def to_display_numpy(self, o_local: np.ndarray, d_local: np.ndarray):
+        """:meth:`to_display` for numpy (N, 3) arrays; numpy results."""
+        T = self.T
+        o = backend.from_numpy(T.Float, *np.asarray(o_local, dtype=T.np_dtype).T)
+        d = backend.from_numpy(T.Float, *np.asarray(d_local, dtype=T.np_dtype).T)
+        with dr.suspend_grad():
+            p, dd, ok = self.to_display(T.Array3(*o), T.Array3(*d))
+            dr.eval(p, dd, ok)
+        return (np.stack([np.asarray(p[i], dtype=np.float64) for i in range(3)], axis=1),
+                np.stack([np.asarray(dd[i], dtype=np.float64) for i in range(3)], axis=1),
+                np.asarray(ok, dtype=bool))
