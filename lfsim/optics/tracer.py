@@ -214,7 +214,8 @@ class SequentialTracer:
 
     # ---------------------------------------------------------------- trace
     def trace(self, P, rays: RayState, block=None, lenslet=None, record: bool = False,
-              first: int = 0, last: int | None = None, clip: bool = True) -> TraceOutput:
+              first: int = 0, last: int | None = None, clip: bool = True,
+              cells: str = "fixed") -> TraceOutput:
         """Trace ``rays`` through every surface; see the module docstring.
 
         Parameters
@@ -240,7 +241,16 @@ class SequentialTracer:
         clip : bool
             Apply clear apertures and lenslet cells (default). ``False`` lets
             rays through them, e.g. to aim a ray at a point on an aperture's edge.
+        cells : {"fixed", "per_surface"}
+            Lenslet arrays. ``"fixed"`` (default, the sub-system view): a ray
+            belongs to the cell it enters at the group's first surface, and
+            meeting another cell's part of a later surface is crosstalk
+            (``WRONG_LENSLET``), as if the cells were baffled. ``"per_surface"``
+            (a monolithic array without baffles, for rendering): each array
+            surface is met on the lenslet where the ray actually crosses it.
         """
+        if cells not in ("fixed", "per_surface"):
+            raise ValueError(f"cells = {cells!r}: expected 'fixed' or 'per_surface'")
         T = self.T
         n = dr.width(rays.p)
         if n == 0:
@@ -300,7 +310,7 @@ class SequentialTracer:
                 arr = self.system.arrays[s.array]
                 px, py = pr(f"{arr.name}.pitch_x"), pr(f"{arr.name}.pitch_y")
                 cx, cy = pr(f"{arr.name}.center_x"), pr(f"{arr.name}.center_y")
-                if s.array not in cell:
+                if s.array not in cell or cells == "per_surface":
                     if lenslet is not None and i == first_group:
                         m_idx, n_idx = T.Int32(lenslet[0]), T.Int32(lenslet[1])
                     else:
@@ -333,6 +343,20 @@ class SequentialTracer:
             )
             t, ok, conv = intersect(pl, dl, shape, T, owner.needs_newton,
                                     self.newton_tol, self.newton_max_iter)
+            if offset is not None and cells == "per_surface":
+                # The vertex-plane crossing picked the cell; near a seam the hit
+                # on the curved face can lie in the neighbour: move there once.
+                hit0 = dr.fma(dl, dr.select(ok, t, 0.0), pl) + offset
+                m2 = T.Int32(dr.floor(dr.detach((hit0.x - cx) / px) + 0.5 * arr.m))
+                n2 = T.Int32(dr.floor(dr.detach((hit0.y - cy) / py) + 0.5 * arr.n))
+                moved = ok & ((m2 != m_idx) | (n2 != n_idx)) & (m2 >= 0) & (m2 < arr.m) & (n2 >= 0) & (n2 < arr.n)
+                m_idx, n_idx = dr.select(moved, m2, m_idx), dr.select(moved, n2, n_idx)
+                offset2 = T.Array3(cx + (T.Float(m_idx) - 0.5 * (arr.m - 1)) * px,
+                                   cy + (T.Float(n_idx) - 0.5 * (arr.n - 1)) * py, 0.0)
+                pl = pl + offset - offset2
+                offset = offset2
+                t, ok, conv = intersect(pl, dl, shape, T, owner.needs_newton,
+                                        self.newton_tol, self.newton_max_iter)
             fail(~ok, Status.MISSED, i)
             fail(ok & ~conv, Status.NOT_CONVERGED, i)
             t = dr.select(ok, t, 0.0)

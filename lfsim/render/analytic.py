@@ -5,7 +5,9 @@ traced backwards through the design's own surfaces (the sequential tracer of
 the metrics, :func:`lfsim.optics.reverse.reversed_system`) to the display
 plane, where it reads the display's radiance. No optics meshes are involved:
 this is the reference the mesh path is measured against. Rays that the real
-optics vignette (lenslet cells, clear apertures, a failed TIR) carry weight 0.
+optics vignette (clear apertures, an aperture array, a failed TIR) carry
+weight 0; by default a ray that crosses between lenslet cells inside the MLA
+goes on through the neighbouring lenslet (crosstalk, see ``cells``).
 RGB renders use one wavelength (the design's primary) for every channel.
 """
 
@@ -29,10 +31,17 @@ class ReverseOptics:
         CDP state (the tunable lens's power).
     precision : str
         ``"float32"`` (default: Mitsuba's RGB variants) or ``"float64"``.
+    cells : {"per_surface", "fixed"}
+        Lenslet arrays: ``"per_surface"`` (default) treats the MLA as one
+        piece of glass, so a ray that crosses into a neighbouring cell inside
+        it leaves through that lenslet's face (crosstalk is rendered, as the
+        mesh path does); ``"fixed"`` keeps each ray in the cell it entered,
+        as if the cells were baffled (an ideal aperture array).
     """
 
-    def __init__(self, model, k: int = 0, precision: str = "float32"):
+    def __init__(self, model, k: int = 0, precision: str = "float32", cells: str = "per_surface"):
         self.model = model
+        self.cells = cells
         spec, system = model.spec, model.system
         values = model.values(k)
         frames = model.tracer.frames_numpy(model.tracer.params(values=values))
@@ -68,7 +77,7 @@ class ReverseOptics:
         through every surface.
         """
         o, d = self.to_global(o_local, d_local)
-        out = self.tracer.trace(self.params(), RayState(o, d))
+        out = self.tracer.trace(self.params(), RayState(o, d), cells=self.cells)
         return out.p, out.d, out.status == 0
 
     def to_display_numpy(self, o_local: np.ndarray, d_local: np.ndarray):

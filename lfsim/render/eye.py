@@ -77,7 +77,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import mitsuba as _mitsuba
-from .eye_models import (  # noqa: F401  (re-exported API)
+from .eye_models import (  # re-exported API
     axial_rms_spot,
     arizona_first_order,
     chief_ray_table,
@@ -93,8 +93,10 @@ MODELS = ("ideal", "arizona")
 MAPPINGS = ("angular", "tangent")
 FOCUS_SURFACES = ("sphere", "plane")
 
-__all__ = ["EyeSpec", "register", "solve_accommodation", "validate", "PLUGIN_NAME", "MODELS",
-           "MAPPINGS", "FOCUS_SURFACES"]
+__all__ = ["EyeSpec", "register", "validate", "default_fov_y", "max_field_angle",
+           "solve_accommodation", "paraxial_accommodation", "axial_rms_spot",
+           "arizona_first_order", "chief_ray_table", "pupil_table", "iris_radius",
+           "eye_origin_depth", "PLUGIN_NAME", "MODELS", "MAPPINGS", "FOCUS_SURFACES"]
 
 
 # ------------------------------------------------------------------ checks

@@ -422,11 +422,14 @@ def axial_rms_spot(accommodation: float, distance_mm: float, pupil_diameter_mm: 
     import drjit as dr
 
     # Real marginal ray: the height on the origin plane that meets the iris edge.
-    h = 0.5 * pupil * np.linspace(0.9, 1.1, 41)
+    h = 0.5 * pupil * np.linspace(0.8, 1.2, 81)
     o, dd = rays(h)
     with dr.suspend_grad():
         out = fwd.trace(P, fwd.rays(o, dd), last=2, clip=False)
     x_iris = np.asarray(out.p[0], dtype=np.float64)
+    if not (np.all(np.diff(x_iris) > 0) and x_iris[0] < iris < x_iris[-1]):
+        raise ValueError(f"distance_mm={distance_mm!r}: cannot find the marginal ray of a "
+                         f"{pupil} mm pupil in the Arizona eye (A={A:g} D)")
     h_max = float(np.interp(iris, x_iris, h))
     s, w = _gauss_legendre_01(n_rings)
     o, dd = rays(h_max * np.sqrt(s))
@@ -460,10 +463,11 @@ def solve_accommodation(distance_mm: float, pupil_diameter_mm: float, wavelength
     Notes
     -----
     A is *not* 1000/distance. Two effects move it, both toward smaller A:
-    at 550 nm the (nd, Vd) media make the eye ≈ 0.19 D more powerful than
-    at its design wavelength (587.6 nm, where the paraxial far point is
-    1/A), and the eye's positive spherical aberration puts the RMS-best
-    focus in front of the paraxial focus. Measured with this function at
+    at 550 nm the (nd, Vd) media make the eye ≈ 0.26 D stronger than at its
+    design wavelength (587.6 nm, where the paraxial far point is at 1/A),
+    which lowers the paraxial A by ≈ 0.2 D, and the eye's positive
+    (under-corrected) spherical aberration puts the RMS-best focus in front
+    of the paraxial focus. Measured with this function at
     550 nm, 3 mm pupil (A − 1000/d): 600 mm → 1.376 D (−0.29), 750 mm →
     1.020 D (−0.31), 1000 mm → 0.666 D (−0.33), 1400 mm → 0.363 D (−0.35),
     inf → −0.39 D; the shift grows with the pupil (1000 mm: 0.531 D at

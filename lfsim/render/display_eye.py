@@ -1,0 +1,106 @@
+"""The eye looking through the exact design at the display (the analytic path).
+
+Sensor plugin ``lfsim_display_eye``: an :mod:`lfsim.render.eye` camera whose
+rays, leaving the pupil on the viewing window, are traced backwards through the
+design by :class:`~lfsim.render.analytic.ReverseOptics` inside ``sample_ray``.
+The ray handed to Mitsuba starts just in front of the display plane and points
+at it, so the scene holds nothing but the display emitter: no optics meshes,
+no relay, no prism — the scene leaves out what this path does not need.
+Vignetted rays carry weight 0; the estimate is the eye's (pupil-averaged
+radiance), so a display path and a natural view of the same eye compare
+directly.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import drjit as dr
+
+from . import mitsuba
+
+PLUGIN_NAME = "lfsim_display_eye"
+#: ReverseOptics objects by id (Mitsuba properties hold only plain values).
+_OPTICS: dict[str, object] = {}
+_ids = itertools.count()
+_registered = False
+#: Distance (mm) in front of the display plane where the handed-over ray starts.
+LAUNCH_GAP = 0.01
+
+
+def attach(optics) -> str:
+    """Make a :class:`ReverseOptics` available to sensors; returns its id."""
+    key = f"optics{next(_ids)}"
+    _OPTICS[key] = optics
+    return key
+
+
+def release(key: str) -> None:
+    _OPTICS.pop(key, None)
+
+
+def _sensor_class(mi):
+    from .eye import register as register_eye
+
+    register_eye()
+
+    class DisplayEye(mi.Sensor):
+        def __init__(self, props):
+            eye = {"type": "lfsim_eye"}
+            for name in ("model", "pupil_diameter", "focus_distance", "fov_x", "fov_y", "mapping",
+                         "wavelength_nm", "focus_surface", "accommodation"):
+                if props.has_property(name):
+                    eye[name] = props[name]
+            eye["film"] = {"type": "hdrfilm", "width": 2, "height": 2}
+            key = props["optics"]
+            if key not in _OPTICS:
+                raise ValueError(f"lfsim_display_eye: optics = {key!r}: no such optics attached")
+            self.optics = _OPTICS[key]
+            super().__init__(props)
+            self.eye = mi.load_dict(eye)
+            self.m_needs_sample_3 = True
+
+        def _sample(self, time, sample1, sample2, sample3, active):
+            ray, weight = self.eye.sample_ray(time, sample1, sample2, sample3, active)
+            T = self.optics.T
+            o = T.Array3(ray.o.x, ray.o.y, ray.o.z)
+            d = T.Array3(ray.d.x, ray.d.y, ray.d.z)
+            p, dd, ok = self.optics.to_display(o, d)
+            ok = ok & (dd.z < 0)
+            start = p - LAUNCH_GAP * dd
+            out = mi.Ray3f(mi.Point3f(start.x, start.y, start.z),
+                           mi.Vector3f(dd.x, dd.y, dd.z), time, ray.wavelengths)
+            return out, dr.select(ok & active, weight, 0.0)
+
+        def sample_ray(self, time, sample1, sample2, sample3, active=True):
+            return self._sample(time, sample1, sample2, sample3, active)
+
+        def sample_ray_differential(self, time, sample1, sample2, sample3, active=True):
+            ray, w = self._sample(time, sample1, sample2, sample3, active)
+            return mi.RayDifferential3f(ray), w
+
+        def to_string(self):
+            return f"DisplayEye[{self.eye}]"
+
+    return DisplayEye
+
+
+def register():
+    """Register ``lfsim_display_eye`` (idempotent); returns the mitsuba module."""
+    global _registered
+    mi = mitsuba()
+    if not _registered:
+        cls = _sensor_class(mi)
+        mi.register_sensor(PLUGIN_NAME, lambda props: cls(props))
+        _registered = True
+    return mi
+
+
+def sensor_dict(eye_spec, optics_key: str, spp: int, seed: int = 0) -> dict:
+    """Mitsuba dict of the analytic display eye for an :class:`~lfsim.render.eye.EyeSpec`."""
+    register()
+    d = eye_spec.sensor_dict(None, spp, seed)
+    d["type"] = PLUGIN_NAME
+    d["optics"] = optics_key
+    d.pop("to_world", None)
+    return d
