@@ -255,6 +255,70 @@ def cmd_analyze(args) -> int:
     return 0
 
 
+DEFAULT_CONTENT = "scenes/fig9_wall.toml"
+
+
+def cmd_focal_stack(args) -> int:
+    from pathlib import Path
+
+    from .analysis import focus_cues
+    from .design.content import load_content
+    from .fileio import write_json
+    from .render.focal_stack import FocalStackSpec, focal_stack
+
+    content = load_content(args.content)
+    view = content.view
+    design_path = args.design or view.get("design")
+    if design_path is None:
+        raise InputError(f"{args.content}: view.design = missing: give a DESIGN argument")
+    design = load(design_path)
+    if design.ini is None:
+        raise InputError(f"{design_path}: ini = missing: lfsim focal-stack needs an [ini] section")
+    focus = _float_list(args.focus_mm, "--focus-mm") if args.focus_mm else view.get("focus_mm", [600.0, 1000.0, 1400.0])
+    if any(not f > 0 for f in focus):
+        raise InputError(f"--focus-mm = {args.focus_mm!r}: distances must be > 0")
+    if args.cdp_mm is not None:
+        try:
+            cdp = float(args.cdp_mm)
+        except ValueError:
+            raise InputError(f"--cdp-mm = {args.cdp_mm!r}: expected a distance in mm or inf") from None
+        if not cdp > 0 or math.isnan(cdp):
+            raise InputError(f"--cdp-mm = {args.cdp_mm!r}: must be > 0 (inf allowed)")
+    else:
+        cdp = view.get("cdp_mm", 1000.0)
+    pupil = args.pupil_mm if args.pupil_mm is not None else view.get("pupil_diameter", 3.0)
+    if not (math.isfinite(pupil) and pupil > 0):
+        raise InputError(f"--pupil-mm = {pupil!r}: must be > 0")
+    if args.spp < 1:
+        raise InputError(f"--spp = {args.spp}: must be >= 1")
+    res = _int_pair(args.resolution, "--resolution") if args.resolution else None
+    spec = FocalStackSpec(focus_mm=[float(f) for f in focus], cdp_mm=cdp, pupil_diameter_mm=float(pupil),
+                          spp=args.spp, resolution=res, seed=args.seed, eye_model=args.eye,
+                          mla_cells=args.mla_cells)
+    quiet = args.json or not sys.stderr.isatty()
+    log = (lambda *a, **k: None) if args.json else (lambda msg: print(msg, file=sys.stderr))
+    doc, stack = focal_stack(design, content, args.out, spec, progress=not quiet, log=log)
+    cues = focus_cues.analyze(stack, stack["content_scene"], args.out)
+    doc["focus_cues"] = {"json": "focus_cues.json", "png": cues["plot"],
+                         "sharpest": [{k: r[k] for k in ("kind", "focus_mm", "focus_diopters", "sharpest_diopters",
+                                                         "offset_diopters", "sharpness_peak", "sharpness_far_mean")}
+                                      for r in cues["results"]]}
+    write_json(Path(args.out) / "index.json", doc)
+    if args.json:
+        print(_dump(doc))
+        return 0
+    print(f"{Path(design_path).name} + {Path(args.content).name}: CDP {cdp:g} mm "
+          f"(tunable lens {doc['tunable_power_diopters']}), {pupil:g} mm pupil, {spec.spp} spp, "
+          f"{doc['resolution'][0]}x{doc['resolution'][1]} px, {doc['total_s']:.1f} s -> {args.out}")
+    for im in doc["images"]:
+        ssim = f"SSIM {im['ssim_vs_natural']:.3f}, PSNR {im['psnr_vs_natural']:.1f} dB" if im["kind"] == "display" else ""
+        print(f"  {im['kind']:8s} focus {im['focus_mm']:7.1f} mm  {im['render_s']:6.1f} s  {ssim}")
+    for r in doc["focus_cues"]["sharpest"]:
+        print(f"  sharpest band ({r['kind']}, focus {r['focus_diopters']:.2f} D): {r['sharpest_diopters']:.2f} D "
+              f"(offset {r['offset_diopters']:+.2f} D)")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="lfsim", description=__doc__.split("\n")[0])
     p.add_argument("--version", action="version", version=f"lfsim {__version__}")
@@ -309,6 +373,24 @@ def build_parser() -> argparse.ArgumentParser:
     lay.add_argument("--out", required=True, help="output directory")
     lay.add_argument("--json", action="store_true")
     lay.set_defaults(func=cmd_layout)
+
+    fs = sub.add_parser("focal-stack", help="retinal images of the display focused at several depths, "
+                        "with the natural view, similarity and focus cues")
+    fs.add_argument("design", nargs="?", help="InI design (default: the content file's [view] design)")
+    fs.add_argument("--content", default=DEFAULT_CONTENT, help=f"content scene (default {DEFAULT_CONTENT})")
+    fs.add_argument("--focus-mm", help="eye focus distances, mm, comma separated (default: the content's)")
+    fs.add_argument("--cdp-mm", help="CDP distance the tunable lens is set to, mm (inf allowed)")
+    fs.add_argument("--pupil-mm", type=float, help="eye pupil diameter, mm (default: the content's, else 3)")
+    fs.add_argument("--eye", choices=("ideal", "arizona"), default="ideal")
+    fs.add_argument("--spp", type=int, default=64, help="samples per pixel (default 64)")
+    fs.add_argument("--resolution", help="W,H of the retinal images (default 512 wide, the display's aspect)")
+    fs.add_argument("--seed", type=int, default=0)
+    fs.add_argument("--mla-cells", choices=("per_surface", "fixed"), default="per_surface",
+                    help="per_surface: one piece of glass, rays crossing between lenslets inside it go on "
+                    "(crosstalk, default); fixed: baffled cells (an ideal aperture array)")
+    fs.add_argument("--out", default="renders/focal_stack", help="output directory (default renders/focal_stack)")
+    fs.add_argument("--json", action="store_true")
+    fs.set_defaults(func=cmd_focal_stack)
     return p
 
 

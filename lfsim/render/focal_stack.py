@@ -1,0 +1,254 @@
+"""Retinal focal stacks: the display seen through the design, focused at several depths.
+
+For a design, a content scene and a CDP depth:
+
+1. the InI model of that CDP state (the tunable lens set for it);
+2. the elemental images: every display pixel's real chief ray traced to the
+   viewing window and on into the content scene (:mod:`.elemental`);
+3. for each focus distance, the retinal image of the display through the
+   optics (the analytic path: :mod:`.display_eye`, the scene holds only the
+   display) and the natural view of the content through the same eye (the
+   ground truth), with SSIM and PSNR between them (scikit-image);
+4. float32 EXRs with metadata, PNG previews, a contact sheet and
+   ``index.json`` (DESIGN.md contract), all written atomically.
+
+Images are in degrees of visual field over the display's FOV, so the display
+and natural views line up pixel for pixel.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import mitsuba
+
+INTEGRATOR = {"type": "path", "max_depth": 2, "hide_emitters": False}
+
+
+@dataclass
+class FocalStackSpec:
+    """What to render (lengths mm; None: the content file's [view] or a default)."""
+
+    focus_mm: list[float] = field(default_factory=lambda: [600.0, 1000.0, 1400.0])
+    cdp_mm: float = 750.0
+    pupil_diameter_mm: float = 3.0
+    spp: int = 64
+    resolution: tuple[int, int] | None = None  # default: 512 wide, the display's aspect
+    seed: int = 0
+    eye_model: str = "ideal"
+    ei_method: str = "real"
+    ei_samples: int = 1
+    natural: bool = True
+    mla_cells: str = "per_surface"  # "fixed": baffled lenslet cells (an ideal aperture array)
+
+
+def _srgb8(img: np.ndarray) -> np.ndarray:
+    x = np.clip(np.asarray(img, dtype=np.float64), 0.0, 1.0)
+    s = np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055)
+    return (np.round(s * 255)).astype(np.uint8)
+
+
+def write_exr(path: Path, img: np.ndarray, meta: dict) -> None:
+    """A float32 RGB EXR (ZIP) with string/float metadata, written atomically."""
+    import OpenEXR
+
+    from ..fileio import atomic_path
+
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    for k, v in meta.items():
+        header[f"lfsim_{k}"] = float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else str(v)
+    with atomic_path(path) as tmp:
+        with OpenEXR.File(header, {"RGB": np.ascontiguousarray(img, dtype=np.float32)}) as f:
+            f.write(str(tmp))
+
+
+def read_exr(path) -> tuple[np.ndarray, dict]:
+    """(image (H, W, 3) float32, header dict) of an EXR written by :func:`write_exr`."""
+    import OpenEXR
+
+    with OpenEXR.File(str(path)) as f:
+        return np.array(f.channels()["RGB"].pixels, dtype=np.float32), dict(f.header())
+
+
+def write_png(path: Path, img: np.ndarray) -> None:
+    from skimage import io
+
+    from ..fileio import atomic_path
+
+    with atomic_path(path) as tmp:
+        io.imsave(str(tmp), _srgb8(img), check_contrast=False)
+
+
+def similarity(img: np.ndarray, ref: np.ndarray) -> tuple[float, float]:
+    """(SSIM, PSNR dB) of ``img`` against ``ref`` on luminance, data range of ``ref``."""
+    from skimage.metrics import peak_signal_noise_ratio, structural_similarity
+
+    w = np.array([0.2126, 0.7152, 0.0722])
+    a, b = np.asarray(img) @ w, np.asarray(ref) @ w
+    rng = float(max(b.max() - b.min(), 1e-12))
+    return (float(structural_similarity(a, b, data_range=rng)),
+            float(peak_signal_noise_ratio(b, a, data_range=rng)))
+
+
+def render(scene_dict: dict) -> tuple[np.ndarray, float]:
+    """Render a Mitsuba scene dict; (image (H, W, 3) float32, seconds)."""
+    mi = mitsuba()
+    t0 = time.perf_counter()
+    scene = mi.load_dict(scene_dict)
+    img = np.array(mi.render(scene), dtype=np.float32)[..., :3]
+    return img, time.perf_counter() - t0
+
+
+def focal_stack(design, content, out_dir, spec: FocalStackSpec | None = None, progress: bool = False,
+                log=print) -> tuple[dict, dict]:
+    """Render a focal stack; writes ``out_dir``.
+
+    Returns ``(index, stack)``: the ``index.json`` document and the images in
+    memory, ``stack = {"fov_deg", "images": {(kind, focus_mm): (H, W, 3)},
+    "reference", "content_scene"}``, where ``reference`` is the natural view
+    through a pinhole pupil (everything sharp), for focus-cue analysis.
+    """
+    from ..fileio import write_json
+    from ..ini.model import model_at_depth
+    from .analytic import ReverseOptics
+    from .content import scene_dict
+    from .display import DisplayLayout
+    from .display_eye import attach, release
+    from .display_eye import sensor_dict as display_sensor
+    from .elemental import elemental_images
+    from .eye import EyeSpec
+
+    spec = spec or FocalStackSpec()
+    mi = mitsuba()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    t_all = time.perf_counter()
+    cdp_D = 0.0 if math.isinf(spec.cdp_mm) else 1000.0 / spec.cdp_mm
+    model = model_at_depth(design, cdp_D)
+    state = model.state(0)
+    layout = DisplayLayout.from_model(model, 0)
+    fx, fy = state.fov_deg
+    W, H = spec.resolution or (512, max(1, int(round(512 * fy / fx))))
+    content_scene = mi.load_dict(scene_dict(content))
+
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=layout.width * layout.height, desc="elemental images", unit="px",
+                   unit_scale=True, leave=False)
+    t0 = time.perf_counter()
+    display = elemental_images(model, content_scene, layout, method=spec.ei_method, samples=spec.ei_samples,
+                               background=content.background, progress=bar.update if bar else None)
+    t_ei = time.perf_counter() - t0
+    if bar:
+        bar.close()
+    base_meta = {"design": design.path or design.name, "content": content.path, "cdp_mm": spec.cdp_mm,
+                 "pupil_mm": spec.pupil_diameter_mm, "eye": spec.eye_model, "seed": spec.seed,
+                 "fov_x_deg": fx, "fov_y_deg": fy}
+    write_exr(out / "elemental_images.exr", display, dict(base_meta, kind="elemental_images",
+                                                          method=spec.ei_method, render_s=round(t_ei, 3)))
+    write_png(out / "elemental_images.png", display)
+    log(f"elemental images: {layout.width}x{layout.height} px ({spec.ei_method} chief rays) in {t_ei:.1f} s")
+
+    key = attach(ReverseOptics(model, 0, cells=spec.mla_cells))
+    images = []
+    try:
+        jobs = [(f, kind) for f in spec.focus_mm for kind in (("display", "natural") if spec.natural
+                                                              else ("display",))]
+        it = jobs
+        if progress:
+            from tqdm import tqdm
+
+            it = tqdm(jobs, desc="retinal images", unit="img", leave=False)
+        by_focus = {}
+        for f, kind in it:
+            eye = EyeSpec(spec.eye_model, spec.pupil_diameter_mm, float(f), (fx, fy), (W, H))
+            if kind == "display":
+                sd = {"type": "scene", "display": layout.emitter_dict(display),
+                      "sensor": display_sensor(eye, key, spec.spp, spec.seed), "integrator": INTEGRATOR}
+            else:
+                sd = scene_dict(content)
+                sd["sensor"] = eye.sensor_dict(None, spec.spp, spec.seed)
+                sd["integrator"] = INTEGRATOR
+            img, secs = render(sd)
+            if not np.all(np.isfinite(img)):
+                raise FloatingPointError(f"non-finite pixels in the {kind} image at {f:g} mm")
+            tag = f"{kind}_{f:g}mm"
+            meta = dict(base_meta, kind=kind, focus_mm=f, spp=spec.spp, render_s=round(secs, 3))
+            write_exr(out / f"{tag}.exr", img, meta)
+            write_png(out / f"{tag}.png", img)
+            by_focus.setdefault(f, {})[kind] = img
+            images.append({"kind": kind, "focus_mm": float(f), "exr": f"{tag}.exr", "png": f"{tag}.png",
+                           "spp": spec.spp, "render_s": round(secs, 3)})
+            log(f"{kind:8s} focus {f:7.1f} mm: {W}x{H} at {spec.spp} spp in {secs:.1f} s")
+        # The sharp reference: the natural view through a pinhole pupil.
+        eye = EyeSpec("ideal", 0.01, math.inf, (fx, fy), (W, H))
+        sd = scene_dict(content)
+        sd["sensor"] = eye.sensor_dict(None, spec.spp, spec.seed)
+        sd["integrator"] = INTEGRATOR
+        reference, secs = render(sd)
+        write_exr(out / "reference_pinhole.exr", reference,
+                  dict(base_meta, kind="reference", pupil_mm=0.01, spp=spec.spp, render_s=round(secs, 3)))
+        write_png(out / "reference_pinhole.png", reference)
+    finally:
+        release(key)
+    for rec in images:
+        pair = by_focus[rec["focus_mm"]]
+        if "natural" in pair and rec["kind"] != "natural":
+            s, p = similarity(pair[rec["kind"]], pair["natural"])
+            rec["ssim_vs_natural"], rec["psnr_vs_natural"] = s, (p if math.isfinite(p) else None)
+    sheet = contact_sheet(out / "contact_sheet.png", spec.focus_mm, by_focus, spec, design, content)
+    doc = {"design": design.path or design.name, "content": content.path, "cdp_mm": spec.cdp_mm,
+           "cdp_diopters": cdp_D, "tunable_power_diopters": state.tunable_power_diopters,
+           "pupil_diameter_mm": spec.pupil_diameter_mm, "eye_model": spec.eye_model,
+           "mla_cells": spec.mla_cells,
+           "fov_deg": [fx, fy], "resolution": [W, H], "seed": spec.seed,
+           "display": {"width": layout.width, "height": layout.height, "pixel_pitch_mm": layout.pixel_pitch,
+                       "exr": "elemental_images.exr", "png": "elemental_images.png",
+                       "method": spec.ei_method, "render_s": round(t_ei, 3)},
+           "images": images, "reference": {"exr": "reference_pinhole.exr", "png": "reference_pinhole.png",
+                                           "pupil_diameter_mm": 0.01},
+           "contact_sheet": sheet, "total_s": round(time.perf_counter() - t_all, 3)}
+    write_json(out / "index.json", doc)
+    stack = {"fov_deg": (fx, fy), "reference": reference, "content_scene": content_scene,
+             "images": {(k, f): v for f, pair in by_focus.items() for k, v in pair.items()}}
+    return doc, stack
+
+
+def contact_sheet(path: Path, focus_mm, by_focus: dict, spec: FocalStackSpec, design, content) -> str:
+    """Display (top) and natural (bottom) views per focus distance, labelled."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..fileio import save_figure
+
+    kinds = [k for k in ("display", "natural") if any(k in by_focus[f] for f in focus_mm)]
+    n = len(focus_mm)
+    any_img = by_focus[focus_mm[0]]["display"]
+    aspect = any_img.shape[0] / any_img.shape[1]
+    fig, axes = plt.subplots(len(kinds), n, figsize=(3.6 * n, 3.6 * aspect * len(kinds) + 0.9), squeeze=False)
+    for j, f in enumerate(focus_mm):
+        for i, kind in enumerate(kinds):
+            ax = axes[i, j]
+            ax.imshow(_srgb8(by_focus[f][kind]), interpolation="lanczos")
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if i == 0:
+                ax.set_title(f"focus {f:g} mm ({1000 / f:.2f} D)", fontsize=10)
+            if j == 0:
+                ax.set_ylabel("through the display" if kind == "display" else "natural view", fontsize=10)
+    cdp = "inf" if math.isinf(spec.cdp_mm) else f"{spec.cdp_mm:g} mm"
+    fig.suptitle(f"{Path(str(design.path or design.name)).name} + {Path(content.path).name}: CDP {cdp}, "
+                 f"{spec.pupil_diameter_mm:g} mm pupil, {spec.eye_model} eye, {spec.spp} spp", fontsize=10)
+    fig.tight_layout()
+    save_figure(fig, path, dpi=110)
+    plt.close(fig)
+    return Path(path).name
