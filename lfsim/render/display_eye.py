@@ -49,7 +49,7 @@ def _sensor_class(mi):
             eye = {"type": "lfsim_eye"}
             for name in ("model", "pupil_diameter", "focus_distance", "fov_x", "fov_y", "mapping",
                          "wavelength_nm", "focus_surface", "accommodation"):
-                if props.has_property(name):
+                if name in props:
                     eye[name] = props[name]
             eye["film"] = {"type": "hdrfilm", "width": 2, "height": 2}
             key = props["optics"]
