@@ -5,11 +5,12 @@ chief rays into the content scene; columns are grouped into bands of equal
 width, each labelled with its median depth.
 The sharpness of a band is the energy of a band-pass (difference of
 Gaussians, σ = 1 and 2.5 pixels: above Monte Carlo pixel noise, below the
-texture's scale) of the retinal image, relative to the same energy in a sharp
-reference (the natural view through a pinhole pupil), so the texture's own
-angular frequency content, which changes with distance, cancels. The band
-where that ratio peaks (refined by a parabola through its neighbours, in
-diopters) is where the eye sees the content sharpest.
+texture's scale) of the retinal image, relative to the same energy in the
+natural view through a pinhole pupil (everything sharp), so the texture's own
+angular frequency content, which changes with distance, cancels: the ratio is
+the fraction of the content's detail that reaches the retina. The profile is smoothed over
+three bands; the band where it peaks (refined by a parabola through its
+neighbours, in diopters) is where the eye sees the content sharpest.
 """
 
 from __future__ import annotations
@@ -75,6 +76,8 @@ def peak_diopters(D: np.ndarray, S: np.ndarray) -> float:
     """Depth (D) of the sharpest band, refined by a parabola through it and its neighbours."""
     order = np.argsort(D)
     D, S = D[order], S[order]
+    if len(S) >= 3:
+        S = np.convolve(np.pad(S, 1, mode="edge"), np.ones(3) / 3.0, mode="valid")
     i = int(np.argmax(S))
     if 0 < i < len(D) - 1:
         x, y = D[i - 1:i + 2], S[i - 1:i + 2]
@@ -89,17 +92,17 @@ def peak_diopters(D: np.ndarray, S: np.ndarray) -> float:
 def analyze(stack: dict, content_scene, out_dir=None, bands: int = 24) -> dict:
     """Focus-cue table of a rendered stack.
 
-    ``stack``: {"fov_deg", "images": {(kind, focus_mm): image}, "reference": image}.
+    ``stack``: {"fov_deg", "images": {(kind, focus_mm): image}, "references": {kind: image}}.
     Returns per focus distance and kind: the sharpest band's depth (D), its
     offset from the focus (D), and the profile; writes ``focus_cues.png`` and
     ``focus_cues.json`` to ``out_dir`` when given.
     """
-    ref = stack["reference"]
-    H, W = ref.shape[:2]
+    refs = stack["references"]
+    H, W = next(iter(refs.values())).shape[:2]
     depth = column_depths(content_scene, stack["fov_deg"], W, H)
     rows = []
     for (kind, f), img in sorted(stack["images"].items(), key=lambda kv: (kv[0][0], kv[0][1])):
-        D, S = sharpness_profile(img, ref, depth, bands)
+        D, S = sharpness_profile(img, refs["natural"], depth, bands)
         peak = peak_diopters(D, S)
         focus_D = 1000.0 / f
         far = np.abs(D - focus_D) > 0.5
@@ -141,7 +144,7 @@ def plot(doc: dict, path) -> str:
             ax.axvline(r["focus_diopters"], color=c, ls=":", lw=1)
             ax.axvline(r["sharpest_diopters"], color=c, ls="--", lw=1)
         ax.set_xlabel("depth of the content along the wall (D)")
-        ax.set_ylabel("sharpness (band-pass energy / pinhole view)")
+        ax.set_ylabel("sharpness (band-pass energy / pinhole-pupil view)")
         ax.set_title("through the display" if kind == "display" else "natural view")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)

@@ -110,8 +110,9 @@ def focal_stack(design, content, out_dir, spec: FocalStackSpec | None = None, pr
 
     Returns ``(index, stack)``: the ``index.json`` document and the images in
     memory, ``stack = {"fov_deg", "images": {(kind, focus_mm): (H, W, 3)},
-    "reference", "content_scene"}``, where ``reference`` is the natural view
-    through a pinhole pupil (everything sharp), for focus-cue analysis.
+    "references": {kind: image}, "content_scene"}``, where the references are
+    the natural view and the display seen through a pinhole pupil (one view,
+    no defocus), for focus-cue analysis.
     """
     from ..fileio import write_json
     from ..ini.model import model_at_depth
@@ -187,15 +188,23 @@ def focal_stack(design, content, out_dir, spec: FocalStackSpec | None = None, pr
             images.append({"kind": kind, "focus_mm": float(f), "exr": f"{tag}.exr", "png": f"{tag}.png",
                            "spp": spec.spp, "render_s": round(secs, 3)})
             log(f"{kind:8s} focus {f:7.1f} mm: {W}x{H} at {spec.spp} spp in {secs:.1f} s")
-        # The sharp reference: the natural view through a pinhole pupil.
+        # Sharp references, through a pinhole pupil (one view, no defocus):
+        # the natural view and the display.
         eye = EyeSpec("ideal", 0.01, math.inf, (fx, fy), (W, H))
-        sd = scene_dict(content)
-        sd["sensor"] = eye.sensor_dict(None, spec.spp, spec.seed)
-        sd["integrator"] = INTEGRATOR
-        reference, secs = render(sd)
-        write_exr(out / "reference_pinhole.exr", reference,
-                  dict(base_meta, kind="reference", pupil_mm=0.01, spp=spec.spp, render_s=round(secs, 3)))
-        write_png(out / "reference_pinhole.png", reference)
+        references = {}
+        for kind in ("natural", "display"):
+            if kind == "display":
+                sd = {"type": "scene", "display": layout.emitter_dict(display),
+                      "sensor": display_sensor(eye, key, spec.spp, spec.seed), "integrator": INTEGRATOR}
+            else:
+                sd = scene_dict(content)
+                sd["sensor"] = eye.sensor_dict(None, spec.spp, spec.seed)
+                sd["integrator"] = INTEGRATOR
+            references[kind], secs = render(sd)
+            write_exr(out / f"reference_pinhole_{kind}.exr", references[kind],
+                      dict(base_meta, kind=f"reference_{kind}", pupil_mm=0.01, spp=spec.spp,
+                           render_s=round(secs, 3)))
+            write_png(out / f"reference_pinhole_{kind}.png", references[kind])
     finally:
         release(key)
     for rec in images:
@@ -212,11 +221,12 @@ def focal_stack(design, content, out_dir, spec: FocalStackSpec | None = None, pr
            "display": {"width": layout.width, "height": layout.height, "pixel_pitch_mm": layout.pixel_pitch,
                        "exr": "elemental_images.exr", "png": "elemental_images.png",
                        "method": spec.ei_method, "render_s": round(t_ei, 3)},
-           "images": images, "reference": {"exr": "reference_pinhole.exr", "png": "reference_pinhole.png",
-                                           "pupil_diameter_mm": 0.01},
+           "images": images,
+           "references": [{"kind": k, "exr": f"reference_pinhole_{k}.exr", "png": f"reference_pinhole_{k}.png",
+                           "pupil_diameter_mm": 0.01} for k in references],
            "contact_sheet": sheet, "total_s": round(time.perf_counter() - t_all, 3)}
     write_json(out / "index.json", doc)
-    stack = {"fov_deg": (fx, fy), "reference": reference, "content_scene": content_scene,
+    stack = {"fov_deg": (fx, fy), "references": references, "content_scene": content_scene,
              "images": {(k, f): v for f, pair in by_focus.items() for k, v in pair.items()}}
     return doc, stack
 
