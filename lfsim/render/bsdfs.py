@@ -49,7 +49,22 @@ def _classes(mi, dr):
     delta_r = mi.BSDFFlags.DeltaReflection
     sides = mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide
 
-    class InterfaceBSDF(mi.BSDF):
+    class DeltaBSDF(mi.BSDF):
+        """Purely specular: nothing to evaluate, only to sample."""
+
+        def eval(self, ctx, si, wo, active=True):
+            return mi.Color3f(0.0)
+
+        def pdf(self, ctx, si, wo, active=True):
+            return mi.Float(0.0)
+
+        def eval_pdf(self, ctx, si, wo, active=True):
+            return mi.Color3f(0.0), mi.Float(0.0)
+
+        def parameters_changed(self, keys):
+            pass
+
+    class InterfaceBSDF(DeltaBSDF):
         """Dielectric interface: refraction with weight 1, reflection only on TIR."""
 
         def __init__(self, props):
@@ -82,26 +97,14 @@ def _classes(mi, dr):
             bs.sampled_component = dr.select(tir, mi.UInt32(0), mi.UInt32(1))
             return bs, dr.select(active, mi.Color3f(1.0), mi.Color3f(0.0))
 
-        def eval(self, ctx, si, wo, active=True):
-            return mi.Color3f(0.0)
-
-        def pdf(self, ctx, si, wo, active=True):
-            return mi.Float(0.0)
-
-        def eval_pdf(self, ctx, si, wo, active=True):
-            return mi.Color3f(0.0), mi.Float(0.0)
-
         def traverse(self, cb):
             cb.put("int_ior", self.int_ior, mi.ParamFlags.Differentiable)
             cb.put("ext_ior", self.ext_ior, mi.ParamFlags.Differentiable)
 
-        def parameters_changed(self, keys):
-            pass
-
         def to_string(self):
             return f"InterfaceBSDF[int_ior={self.spec['int_ior']}, ext_ior={self.spec['ext_ior']}]"
 
-    class ThinLensBSDF(mi.BSDF):
+    class ThinLensBSDF(DeltaBSDF):
         """Ideal thin lens (array) on a plane whose UVs are the local (x, y)."""
 
         def __init__(self, props):
@@ -155,21 +158,9 @@ def _classes(mi, dr):
             good = active & ok & (adz > 0.0)
             return bs, dr.select(good, mi.Color3f(1.0), mi.Color3f(0.0))
 
-        def eval(self, ctx, si, wo, active=True):
-            return mi.Color3f(0.0)
-
-        def pdf(self, ctx, si, wo, active=True):
-            return mi.Float(0.0)
-
-        def eval_pdf(self, ctx, si, wo, active=True):
-            return mi.Color3f(0.0), mi.Float(0.0)
-
         def traverse(self, cb):
             cb.put("power", self.power, mi.ParamFlags.Differentiable)
             cb.put("ior", self.ior, mi.ParamFlags.Differentiable)
-
-        def parameters_changed(self, keys):
-            pass
 
         def to_string(self):
             return f"ThinLensBSDF[power={self.spec['power']}, array={self.am}x{self.an}]"

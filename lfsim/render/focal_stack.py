@@ -158,6 +158,16 @@ def focal_stack(design, content, out_dir, spec: FocalStackSpec | None = None, pr
     log(f"elemental images: {layout.width}x{layout.height} px ({spec.ei_method} chief rays) in {t_ei:.1f} s")
 
     key = attach(ReverseOptics(model, 0, cells=spec.mla_cells))
+
+    def scene_for(kind, eye):
+        """The display through the optics (analytic path), or the content seen directly."""
+        if kind == "display":
+            return {"type": "scene", "display": layout.emitter_dict(display),
+                    "sensor": display_sensor(eye, key, spec.spp, spec.seed), "integrator": INTEGRATOR}
+        sd = scene_dict(content)
+        sd["sensor"] = eye.sensor_dict(None, spec.spp, spec.seed)
+        sd["integrator"] = INTEGRATOR
+        return sd
     images = []
     try:
         jobs = [(f, kind) for f in spec.focus_mm for kind in (("display", "natural") if spec.natural
@@ -170,14 +180,7 @@ def focal_stack(design, content, out_dir, spec: FocalStackSpec | None = None, pr
         by_focus = {}
         for f, kind in it:
             eye = EyeSpec(spec.eye_model, spec.pupil_diameter_mm, float(f), (fx, fy), (W, H))
-            if kind == "display":
-                sd = {"type": "scene", "display": layout.emitter_dict(display),
-                      "sensor": display_sensor(eye, key, spec.spp, spec.seed), "integrator": INTEGRATOR}
-            else:
-                sd = scene_dict(content)
-                sd["sensor"] = eye.sensor_dict(None, spec.spp, spec.seed)
-                sd["integrator"] = INTEGRATOR
-            img, secs = render(sd)
+            img, secs = render(scene_for(kind, eye))
             if not np.all(np.isfinite(img)):
                 raise FloatingPointError(f"non-finite pixels in the {kind} image at {f:g} mm")
             tag = f"{kind}_{f:g}mm"
@@ -193,14 +196,7 @@ def focal_stack(design, content, out_dir, spec: FocalStackSpec | None = None, pr
         eye = EyeSpec("ideal", 0.01, math.inf, (fx, fy), (W, H))
         references = {}
         for kind in ("natural", "display"):
-            if kind == "display":
-                sd = {"type": "scene", "display": layout.emitter_dict(display),
-                      "sensor": display_sensor(eye, key, spec.spp, spec.seed), "integrator": INTEGRATOR}
-            else:
-                sd = scene_dict(content)
-                sd["sensor"] = eye.sensor_dict(None, spec.spp, spec.seed)
-                sd["integrator"] = INTEGRATOR
-            references[kind], secs = render(sd)
+            references[kind], secs = render(scene_for(kind, eye))
             write_exr(out / f"reference_pinhole_{kind}.exr", references[kind],
                       dict(base_meta, kind=f"reference_{kind}", pupil_mm=0.01, spp=spec.spp,
                            render_s=round(secs, 3)))

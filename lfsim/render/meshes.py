@@ -176,7 +176,7 @@ class SurfaceModel:
         self.values = values
         with dr.suspend_grad():
             self.frames = self.tracer.frames_numpy(self.tracer.params(values=values))
-        self._media = self._media_params()
+        self._media = self.tracer._index_param  # index parameter of the medium before each surface
 
     # -- parameters
     def value(self, name: str) -> float:
@@ -185,15 +185,6 @@ class SurfaceModel:
     def owner(self, i: int) -> int:
         s = self.system.surfaces[i]
         return s.same_as if s.same_as is not None else i
-
-    def _media_params(self) -> list[str]:
-        cur, out = "object.index", []
-        for s in self.system.surfaces:
-            out.append(cur)
-            if s.interaction == "refract":
-                cur = f"{s.name}.index"
-        out.append(cur)
-        return out
 
     def index_before(self, i: int) -> float:
         """Index of the medium a ray is in when it meets surface ``i``."""
