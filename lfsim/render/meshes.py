@@ -661,6 +661,55 @@ def aperture_mask(model: SurfaceModel, i: int, array: str, holes: int = 8, name:
     return Mesh(name or s.name, P, faces, Ng, np.stack([X, Y], -1).reshape(-1, 2), "mask", i)
 
 
+def mount(model: SurfaceModel, i: int, region: Aperture, array: str | None = None, points: int = 256,
+          name: str | None = None) -> Mesh:
+    """An absorbing mount around surface ``i``: a flat ring in its local frame
+    from the edge of ``region`` (circle or rectangle, decentred) out to
+    max(2·reach, reach + 10 mm), at the sag of the edge (so it meets the rim).
+
+    The tracer vignettes a ray outside a clear aperture (or outside a lenslet
+    array); in a scene of meshes the lens barrel or the array's holder does.
+    The inner loop passes through the rectangle's corners exactly, so the ring
+    never covers the clear aperture. For an array the sag is taken on the
+    edge lenslets (lenslet-relative coordinates)."""
+    dx, dy = region.decenter
+    if region.kind == "circular":
+        th = _TWO_PI * np.arange(points) / points
+        ix, iy = region.radius * np.cos(th), region.radius * np.sin(th)
+        reach = region.radius
+    else:
+        a, b = region.half_width
+        corners = np.arctan2([b, b, -b, -b], [a, -a, -a, a]) % _TWO_PI
+        th = np.unique(np.concatenate([_TWO_PI * np.arange(points) / points, corners]))
+        c, sn = np.cos(th), np.sin(th)
+        t = np.minimum(a / np.maximum(np.abs(c), 1e-300), b / np.maximum(np.abs(sn), 1e-300))
+        ix, iy = t * c, t * sn
+        reach = math.hypot(a, b)
+    ix, iy = ix + dx, iy + dy
+    R_out = max(2.0 * reach, reach + 10.0)
+    ox, oy = dx + R_out * np.cos(th), dy + R_out * np.sin(th)
+    if array is None:
+        z, _ = model.sag(i, ix, iy)
+    else:
+        xm, yn, (px, py) = model.lenslet_centres(array)
+        # the edge point relative to its own (nearest edge) lenslet
+        mx = xm[np.clip(np.searchsorted(xm, ix), 0, len(xm) - 1)]
+        ny = yn[np.clip(np.searchsorted(yn, iy), 0, len(yn) - 1)]
+        lx = np.clip(ix - mx, -0.5 * px, 0.5 * px)
+        ly = np.clip(iy - ny, -0.5 * py, 0.5 * py)
+        z, _ = model.sag(i, lx, ly)
+    z = np.where(np.isfinite(z), z, 0.0)
+    n = len(th)
+    local = np.concatenate([np.stack([ix, iy, z], 1), np.stack([ox, oy, z], 1)])
+    P = model.to_global(i, local)
+    k = np.arange(n)
+    k1 = (k + 1) % n
+    faces = np.concatenate([np.stack([k, k1, n + k1], 1), np.stack([k, n + k1, n + k], 1)]).astype(np.int64)
+    faces = _drop_degenerate(faces, P)
+    return Mesh(name or f"{model.system.surfaces[i].name}_mount", P, faces, None,
+                np.concatenate([np.stack([ix, iy], 1), np.stack([ox, oy], 1)]), "mount", i)
+
+
 # ---------------------------------------------------------------- prisms
 def prism_solid(model: SurfaceModel, surfaces: list[int], segments: int = DEFAULT_SEGMENTS,
                 name: str | None = None, footprints: dict | None = None, margin: float = 0.1) -> Solid:

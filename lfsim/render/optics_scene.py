@@ -40,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..optics.prescription import Aperture
 from . import bsdfs as _bsdfs
 from . import meshes as _m
 
@@ -191,8 +192,14 @@ def _resolve(system, ref) -> int:
 
 
 def optics_parts(design, values=None, wavelength_nm=None, segments: int = _m.DEFAULT_SEGMENTS,
-                 lenslet_segments: int = _m.DEFAULT_LENSLET_SEGMENTS, span=None) -> list[OpticsPart]:
-    """The meshes and BSDFs of :func:`optics_shapes` (numpy, before export)."""
+                 lenslet_segments: int = _m.DEFAULT_LENSLET_SEGMENTS, span=None,
+                 mounts: bool = True) -> list[OpticsPart]:
+    """The meshes and BSDFs of :func:`optics_shapes` (numpy, before export).
+
+    ``mounts``: absorbing rings around every lens face with a clear aperture
+    and around each lenslet array (barrels and holders), so a ray the tracer
+    vignettes is stopped in the scene too instead of passing beside the glass.
+    """
     model = _m.SurfaceModel(design, values, wavelength_nm)
     system = model.system
     sides = surface_sides(model)
@@ -213,6 +220,12 @@ def optics_parts(design, values=None, wavelength_nm=None, segments: int = _m.DEF
             for mesh in solid.meshes:
                 b = _face_bsdf(model, sides, mesh.surface) if mesh.role == "face" else absorb
                 parts.append(OpticsPart(mesh, b, comp.name))
+            if mounts and kind == "lens":
+                for i in idx:
+                    if system.surfaces[i].aperture is not None:
+                        parts.append(OpticsPart(_m.mount(model, i, system.surfaces[i].aperture), absorb, comp.name))
+            elif mounts and kind == "lenslet_array":
+                parts.append(OpticsPart(_array_mount(model, idx[0]), absorb, comp.name))
         elif kind in ("face", "mirror"):
             mesh = _m.tessellate_surface(model, idx[0], segments)
             parts.append(OpticsPart(mesh, _face_bsdf(model, sides, idx[0]), comp.name))
@@ -239,11 +252,23 @@ def optics_parts(design, values=None, wavelength_nm=None, segments: int = _m.DEF
             b = _bsdfs.thin_lens(model.power(i), model.index_before(i), model.frames[i][0],
                                  array=(a.m, a.n, pitch, centre))
             parts.append(OpticsPart(mesh, b, comp.name))
+            if mounts:
+                parts.append(OpticsPart(_array_mount(model, i), absorb, comp.name))
         elif kind == "aperture_array":
             mesh = _m.aperture_mask(model, idx[0], system.surfaces[idx[0]].array)
             if len(mesh.faces):
                 parts.append(OpticsPart(mesh, absorb, comp.name))
     return parts
+
+
+def _array_mount(model, i: int) -> _m.Mesh:
+    """The holder around lenslet array member ``i`` (its M×N cells are the clear area)."""
+    arr = model.system.surfaces[i].array
+    a = model.system.arrays[arr]
+    _, _, (px, py) = model.lenslet_centres(arr)
+    cx, cy = model.value(f"{arr}.center_x"), model.value(f"{arr}.center_y")
+    region = Aperture("rectangular", half_width=(0.5 * a.m * px, 0.5 * a.n * py), decenter=(cx, cy))
+    return _m.mount(model, i, region, array=arr)
 
 
 def _mesh_dir(mesh_dir) -> Path:
@@ -259,7 +284,7 @@ def _mesh_dir(mesh_dir) -> Path:
 
 def optics_shapes(design, values=None, wavelength_nm=None, segments: int = _m.DEFAULT_SEGMENTS,
                   lenslet_segments: int = _m.DEFAULT_LENSLET_SEGMENTS, span=None,
-                  mesh_dir=None) -> dict[str, dict]:
+                  mesh_dir=None, mounts: bool = True) -> dict[str, dict]:
     """Mitsuba shape dicts of a design's optics (display and eye excluded).
 
     Parameters
@@ -292,7 +317,7 @@ def optics_shapes(design, values=None, wavelength_nm=None, segments: int = _m.DE
     _bsdfs.register()
     out_dir = _mesh_dir(mesh_dir)
     shapes: dict[str, dict] = {}
-    for part in optics_parts(design, values, wavelength_nm, segments, lenslet_segments, span):
+    for part in optics_parts(design, values, wavelength_nm, segments, lenslet_segments, span, mounts):
         m = part.mesh
         blob = ply_bytes(m)
         path = out_dir / f"{m.name}-{hashlib.sha1(blob).hexdigest()[:16]}.ply"

@@ -1,0 +1,128 @@
+"""Render error against run time: samples per pixel and mesh tessellation.
+
+* spp: the analytic display path (eye rays traced back through the design)
+  rendered by Mitsuba at 4 … 256 spp, against a 4096-spp render of the same
+  path (the converged reference): relative RMSE (RMSE / mean) and seconds.
+* tessellation: the mesh path (Mitsuba meshes of the optics, 8 … 64 segments
+  per semi-diameter and per lenslet) against the analytic path with the same
+  eye rays (common random numbers, :mod:`lfsim.render.accuracy`), so only the
+  geometric error is left; seconds include building and loading the meshes.
+
+Scene: the Fig. 9 wall's elemental images on each design, CDP 750 mm, ideal
+eye focused at 750 mm, 3 mm pupil. Prints tables and writes
+``benchmarks/results/render_error_vs_time.json`` and
+``docs/img/render_error_vs_time.png``.
+
+    .venv/bin/python benchmarks/render_error_vs_time.py [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import lfsim  # noqa: E402
+from lfsim.design.content import load_content  # noqa: E402
+from lfsim.fileio import save_figure, write_json  # noqa: E402
+from lfsim.ini.model import model_at_depth  # noqa: E402
+from lfsim.render import display_eye, mitsuba  # noqa: E402
+from lfsim.render.accuracy import paired_renders, relative_rmse  # noqa: E402
+from lfsim.render.analytic import ReverseOptics  # noqa: E402
+from lfsim.render.content import scene_dict  # noqa: E402
+from lfsim.render.display import DisplayLayout  # noqa: E402
+from lfsim.render.elemental import elemental_images  # noqa: E402
+from lfsim.render.eye import EyeSpec  # noqa: E402
+from lfsim.render.focal_stack import INTEGRATOR, render  # noqa: E402
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="smaller images and fewer settings")
+    args = ap.parse_args(argv)
+    mi = mitsuba()
+    res = (64, 37) if args.quick else (128, 74)
+    spps = [4, 16, 64] if args.quick else [4, 16, 64, 256]
+    ref_spp = 1024 if args.quick else 4096
+    segs = [8, 16, 32] if args.quick else [8, 16, 32, 64]
+    pair_spp = 16 if args.quick else 64
+    content = load_content(ROOT / "scenes" / "fig9_wall.toml")
+    cscene = mi.load_dict(scene_dict(content))
+    doc = {"resolution": list(res), "reference_spp": ref_spp, "pair_spp": pair_spp, "designs": {}}
+    for name in ("ini_ideal", "ini_coaxial"):
+        design = lfsim.load(ROOT / "scenes" / f"{name}.toml")
+        model = model_at_depth(design, 1000.0 / 750.0)
+        layout = DisplayLayout.from_model(model)
+        display = elemental_images(model, cscene, layout)
+        fx, fy = model.state(0).fov_deg
+        eye = EyeSpec("ideal", 3.0, 750.0, (fx, fy), res)
+        key = display_eye.attach(ReverseOptics(model, 0))
+
+        def analytic(spp, seed):
+            return render({"type": "scene", "display": layout.emitter_dict(display),
+                           "sensor": display_eye.sensor_dict(eye, key, spp, seed), "integrator": INTEGRATOR})
+
+        ref, t_ref = analytic(ref_spp, 1000)
+        rows_spp = []
+        for spp in spps:
+            img, secs = analytic(spp, 0)
+            rows_spp.append({"spp": spp, "rel_rmse": relative_rmse(img, ref), "seconds": secs})
+        display_eye.release(key)
+        pairs = paired_renders(model, layout, display, eye, spp=pair_spp, segments=segs)
+        base, t_an = pairs["analytic"]
+        rows_seg = [{"segments": S, "rel_rmse": relative_rmse(pairs[S][0], base), "seconds": pairs[S][1]}
+                    for S in segs]
+        doc["designs"][name] = {"spp": rows_spp, "reference_seconds": t_ref, "tessellation": rows_seg,
+                                "analytic_pair_seconds": t_an}
+        print(f"\n{name}: analytic path, {res[0]}x{res[1]} px, vs {ref_spp} spp ({t_ref:.1f} s)")
+        print("  spp    rel. RMSE   seconds")
+        for r in rows_spp:
+            print(f"  {r['spp']:5d}  {r['rel_rmse']:9.4f}  {r['seconds']:8.2f}")
+        print(f"  mesh path vs analytic, same eye rays ({pair_spp} spp; analytic {t_an:.2f} s)")
+        print("  segments  rel. RMSE   seconds")
+        for r in rows_seg:
+            print(f"  {r['segments']:8d}  {r['rel_rmse']:9.5f}  {r['seconds']:8.2f}")
+    out = ROOT / "benchmarks" / "results" / "render_error_vs_time.json"
+    write_json(out, doc)
+    _plot(doc, ROOT / "docs" / "img" / "render_error_vs_time.png")
+    print(f"\nwrote {out.relative_to(ROOT)} and docs/img/render_error_vs_time.png")
+    return 0
+
+
+def _plot(doc, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+    for name, d in doc["designs"].items():
+        axes[0].loglog([r["seconds"] for r in d["spp"]], [r["rel_rmse"] for r in d["spp"]], "o-", label=name)
+        for r in d["spp"]:
+            axes[0].annotate(f"{r['spp']}", (r["seconds"], r["rel_rmse"]), fontsize=7)
+        xs = [r["seconds"] for r in d["tessellation"]]
+        ys = [max(r["rel_rmse"], 1e-6) for r in d["tessellation"]]
+        axes[1].loglog(xs, ys, "s-", label=name)
+        for r, x, y in zip(d["tessellation"], xs, ys):
+            axes[1].annotate(f"{r['segments']}", (x, y), fontsize=7)
+    axes[0].set_title(f"analytic path: spp vs {doc['reference_spp']}-spp reference")
+    axes[1].set_title(f"mesh path vs analytic (same rays, {doc['pair_spp']} spp): segments")
+    for ax in axes:
+        ax.set_xlabel("seconds")
+        ax.set_ylabel("RMSE / mean")
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    save_figure(fig, path, dpi=110)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,109 @@
+"""How far the mesh path is from the analytic path, with the noise taken out.
+
+Two Monte Carlo renders differ by noise as well as by geometry. To measure the
+geometry alone (the tessellation error) both paths here see the *same* eye
+rays — common random numbers: every pixel's jittered film positions and pupil
+samples are drawn once, turned into rays by the eye sensor, and then
+
+* traced backwards through the design by :class:`~.analytic.ReverseOptics`
+  (the analytic reference), or
+* walked through the Mitsuba meshes of the optics
+  (:func:`~.optics_scene.trace_scene`),
+
+and both read the display image bilinearly where they cross the display
+plane (as Mitsuba's bilinear bitmap does). The pixel value is the mean over
+its samples, the eye's estimator. What is left between the two images is the
+tessellation (and float32) error.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from . import mitsuba
+
+
+def eye_rays(eye_spec, spp: int, seed: int = 0):
+    """Eye rays of every pixel (viewing-window frame, numpy): origins, directions,
+    weights (N,) and pixel index (N,), N = W·H·spp (stratified film jitter,
+    uniform pupil samples)."""
+    import drjit as dr
+
+    mi = mitsuba()
+    sensor = eye_spec.load(None, spp=1, seed=seed)
+    W, H = eye_spec.resolution
+    rng = np.random.default_rng(seed)
+    pix = np.repeat(np.arange(W * H), spp)
+    u = ((pix % W) + rng.random(pix.size)) / W
+    v = ((pix // W) + rng.random(pix.size)) / H
+    ap = rng.random((pix.size, 2))
+    f = lambda a: mi.Float(np.ascontiguousarray(a, dtype=np.float32))  # noqa: E731
+    with dr.suspend_grad():
+        ray, w = sensor.sample_ray(mi.Float(0.0), mi.Float(0.5), mi.Point2f(f(u), f(v)),
+                                   mi.Point2f(f(ap[:, 0]), f(ap[:, 1])))
+        dr.eval(ray, w)
+    o = np.column_stack([np.asarray(ray.o[i], dtype=np.float64) for i in range(3)])
+    d = np.column_stack([np.asarray(ray.d[i], dtype=np.float64) for i in range(3)])
+    return o, d, np.asarray(w[0], dtype=np.float64), pix
+
+
+def display_lookup(layout, image: np.ndarray, xy: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Radiance (N, 3) of the display image at global points ``xy`` (bilinear between
+    pixel centres, clamped at the border; 0 off the display or for invalid rays)."""
+    from scipy.ndimage import map_coordinates
+
+    p = layout.pixel_pitch
+    col = (xy[:, 0] - layout.center[0]) / p + 0.5 * layout.width - 0.5
+    row = 0.5 * layout.height - (xy[:, 1] - layout.center[1]) / p - 0.5
+    on = valid & (col >= -0.5) & (col <= layout.width - 0.5) & (row >= -0.5) & (row <= layout.height - 0.5)
+    c = np.clip(col, 0, layout.width - 1)
+    r = np.clip(row, 0, layout.height - 1)
+    out = np.stack([map_coordinates(image[..., k], [r, c], order=1, mode="nearest") for k in range(3)], axis=1)
+    return np.where(on[:, None], out, 0.0)
+
+
+def _image(values: np.ndarray, weights: np.ndarray, pix: np.ndarray, W: int, H: int) -> np.ndarray:
+    acc = np.zeros((W * H, 3))
+    np.add.at(acc, pix, values * weights[:, None])
+    spp = np.bincount(pix, minlength=W * H)[:, None]
+    return (acc / np.maximum(spp, 1)).reshape(H, W, 3)
+
+
+def paired_renders(model, layout, display: np.ndarray, eye_spec, spp: int = 16,
+                   segments=(8, 16, 32, 64), seed: int = 0) -> dict:
+    """Analytic and mesh images from the same eye rays.
+
+    Returns ``{"analytic": (image, seconds), segments: (image, seconds), ...}``;
+    the mesh times include building and loading the meshes.
+    """
+    from .analytic import ReverseOptics
+    from .optics_scene import optics_shapes, trace_scene
+
+    mi = mitsuba()
+    W, H = eye_spec.resolution
+    o, d, w, pix = eye_rays(eye_spec, spp, seed)
+    out = {}
+    t0 = time.perf_counter()
+    rev = ReverseOptics(model, 0)
+    p, dd, ok = rev.to_display_numpy(o, d)
+    L = display_lookup(layout, display, p[:, :2], ok & (dd[:, 2] < 0))
+    out["analytic"] = (_image(L, w, pix, W, H), time.perf_counter() - t0)
+    og, dg = o @ model.R_vw.T + model.o_vw, d @ model.R_vw.T
+    for S in segments:
+        t0 = time.perf_counter()
+        scene = mi.load_dict({"type": "scene", **optics_shapes(model.design, values=model.values(0),
+                                                                 segments=S, lenslet_segments=S)})
+        res = trace_scene(scene, og, dg, max_depth=64)
+        dz = res.directions[:, 2]
+        t = (layout.z - res.positions[:, 2]) / np.where(dz < 0, dz, -1.0)
+        hit = res.positions + t[:, None] * res.directions
+        L = display_lookup(layout, display, hit[:, :2], res.valid & (dz < 0))
+        out[S] = (_image(L, w, pix, W, H), time.perf_counter() - t0)
+    return out
+
+
+def relative_rmse(img: np.ndarray, ref: np.ndarray) -> float:
+    """RMSE of ``img`` against ``ref`` divided by the mean of ``ref``."""
+    return float(np.sqrt(np.mean((np.asarray(img) - ref) ** 2)) / max(float(np.mean(ref)), 1e-30))
