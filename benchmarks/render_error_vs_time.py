@@ -113,7 +113,7 @@ def _plot(doc, path):
         for r, x, y in zip(d["tessellation"], xs, ys):
             axes[1].annotate(f"{r['segments']}", (x, y), fontsize=7)
     axes[0].set_title(f"analytic path: spp vs {doc['reference_spp']}-spp reference")
-    axes[1].set_title(f"mesh path vs analytic (same rays, {doc['pair_spp']} spp): segments")
+    axes[1].set_title(f"mesh vs analytic path, same rays ({doc['pair_spp']} spp)")
     for ax in axes:
         ax.set_xlabel("seconds")
         ax.set_ylabel("RMSE / mean")
