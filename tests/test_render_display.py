@@ -102,3 +102,18 @@ def test_elemental_images_show_the_content_seen_along_each_pixel_ray(scenes):
         assert 0.2 < lit.mean() < 0.8
         np.testing.assert_allclose(img[clear & lit], np.broadcast_to([0.25, 0.5, 1.0], img[clear & lit].shape), rtol=1e-6)
         assert np.all(img[clear & ~lit] == 0.0)
+
+
+def test_image_texture_is_decoded_from_srgb_to_linear(tmp_path):
+    """An 8-bit sRGB value 188 is linear 0.5029 (the sRGB transfer function, IEC 61966-2-1)."""
+    from skimage import io
+
+    from lfsim.render.content import texture_image
+
+    io.imsave(tmp_path / "t.png", np.full((4, 6, 3), 188, dtype=np.uint8), check_contrast=False)
+    c = content_from_dict({"objects": [{"corners": [[-1, -1, -100], [1, -1, -100], [-1, 1, -100]],
+                                        "texture": {"type": "image", "path": "t.png"}}]}, "c.toml", tmp_path)
+    img = texture_image(c.objects[0])
+    assert img.shape == (4, 6, 3)
+    expect = ((188 / 255 + 0.055) / 1.055) ** 2.4
+    np.testing.assert_allclose(img, expect, rtol=1e-3)

@@ -92,17 +92,17 @@ def peak_diopters(D: np.ndarray, S: np.ndarray) -> float:
 def analyze(stack: dict, content_scene, out_dir=None, bands: int = 24) -> dict:
     """Focus-cue table of a rendered stack.
 
-    ``stack``: {"fov_deg", "images": {(kind, focus_mm): image}, "references": {kind: image}}.
+    ``stack``: {"fov_deg", "images": {(kind, focus_mm): image}, "reference": image}.
     Returns per focus distance and kind: the sharpest band's depth (D), its
     offset from the focus (D), and the profile; writes ``focus_cues.png`` and
     ``focus_cues.json`` to ``out_dir`` when given.
     """
-    refs = stack["references"]
-    H, W = next(iter(refs.values())).shape[:2]
+    ref = stack["reference"]
+    H, W = ref.shape[:2]
     depth = column_depths(content_scene, stack["fov_deg"], W, H)
     rows = []
     for (kind, f), img in sorted(stack["images"].items(), key=lambda kv: (kv[0][0], kv[0][1])):
-        D, S = sharpness_profile(img, refs["natural"], depth, bands)
+        D, S = sharpness_profile(img, ref, depth, bands)
         peak = peak_diopters(D, S)
         focus_D = 1000.0 / f
         far = np.abs(D - focus_D) > 0.5

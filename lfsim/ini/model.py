@@ -383,16 +383,15 @@ def model_at_depth(design, diopters: float, wavelength_nm: float | None = None,
         raise DesignError(design.path or "<dict>", "cdp_diopters", diopters, "expected a depth >= 0 D")
     powers = None
     if spec.tunable is not None and spec.tunable_power_diopters is not None:
-        depths = np.asarray(spec.cdp_diopters, dtype=np.float64)
-        order = np.argsort(depths)
-        given = np.asarray(spec.tunable_power_diopters, dtype=np.float64)[order]
-        if len(depths) == 1:
-            powers = [float(given[0])]
+        if len(spec.cdp_diopters) == 1:
+            powers = [float(spec.tunable_power_diopters[0])]
         else:
+            from scipy.interpolate import interp1d
+
             # linear in diopters, extrapolated with the end segments' slopes
-            d, p = depths[order], given
-            i = int(np.clip(np.searchsorted(d, D) - 1, 0, len(d) - 2))
-            powers = [float(p[i] + (p[i + 1] - p[i]) * (D - d[i]) / (d[i + 1] - d[i]))]
+            f = interp1d(spec.cdp_diopters, spec.tunable_power_diopters, fill_value="extrapolate",
+                         assume_sorted=False)
+            powers = [float(f(D))]
     clone = copy.copy(design)
     if spec.tunable is None:
         if spec.cdp_diopters is not None and abs(spec.cdp_diopters[0] - D) > 1e-9:

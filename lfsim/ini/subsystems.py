@@ -17,7 +17,6 @@ import drjit as dr
 import numpy as np
 
 from ..backend import from_numpy
-from ..optics.tracer import RayState
 from .model import IniModel
 
 
@@ -155,12 +154,10 @@ def trace(model: IniModel, subs: Subsystems, rho: np.ndarray, aim_iterations: in
 
 
 def _trace_chunk(model: IniModel, subs: Subsystems, sl: slice, rho: np.ndarray, iterations: int):
-    s = subs.display[sl]  # (s, F, 2)
-    c = subs.center[sl]
+    s = subs.display[sl]  # (s, F, 2); lenslet centres follow from (m, n)
     ns, F, R = s.shape[0], s.shape[1], len(rho)
     shape = (ns, F, R)
     s_r = np.broadcast_to(s[:, :, None, :], shape + (2,)).reshape(-1, 2)
-    c_r = np.broadcast_to(c[:, None, None, :], shape + (2,)).reshape(-1, 2)
     rho_r = np.broadcast_to(rho[None, None, :, :], shape + (2,)).reshape(-1, 2)
     m_r = np.broadcast_to(subs.m[sl][:, None, None], shape).ravel()
     n_r = np.broadcast_to(subs.n[sl][:, None, None], shape).ravel()

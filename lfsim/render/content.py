@@ -19,17 +19,11 @@ def texture_image(q: Quad) -> np.ndarray:
     t = q.texture
     lu, lv = float(np.linalg.norm(q.u)), float(np.linalg.norm(q.v))
     if t.kind == "image":
-        from skimage import io, util
-        from skimage.color import gray2rgb
-
-        img = io.imread(t.params["path"])
-        img = util.img_as_float32(img)
-        if img.ndim == 2:
-            img = gray2rgb(img)
-        img = img[..., :3]
-        if not t.params["path"].lower().endswith(".exr"):
-            img = np.where(img <= 0.04045, img / 12.92, ((img + 0.055) / 1.055) ** 2.4)  # sRGB -> linear
-        return img.astype(np.float32)
+        # Mitsuba decodes sRGB (PNG, JPEG) to linear; EXR stays linear.
+        mi = mitsuba()
+        bmp = mi.Bitmap(t.params["path"]).convert(mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.Float32,
+                                                    srgb_gamma=False)
+        return np.array(bmp, dtype=np.float32)
     if t.kind == "constant":
         return np.ones((2, 2, 3), dtype=np.float32)
     if t.kind == "noise":

@@ -48,9 +48,10 @@ class FocalStackSpec:
 
 
 def _srgb8(img: np.ndarray) -> np.ndarray:
-    x = np.clip(np.asarray(img, dtype=np.float64), 0.0, 1.0)
-    s = np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055)
-    return (np.round(s * 255)).astype(np.uint8)
+    """Linear RGB → 8-bit sRGB (Mitsuba's conversion, clamped to [0, 1])."""
+    mi = mitsuba()
+    bmp = mi.Bitmap(np.ascontiguousarray(np.clip(img, 0.0, 1.0), dtype=np.float32))
+    return np.array(bmp.convert(mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.UInt8, srgb_gamma=True))
 
 
 def write_exr(path: Path, img: np.ndarray, meta: dict) -> None:
@@ -76,12 +77,12 @@ def read_exr(path) -> tuple[np.ndarray, dict]:
 
 
 def write_png(path: Path, img: np.ndarray) -> None:
-    from skimage import io
-
+    """An 8-bit sRGB preview of a linear image, written atomically."""
     from ..fileio import atomic_path
 
+    mi = mitsuba()
     with atomic_path(path) as tmp:
-        io.imsave(str(tmp), _srgb8(img), check_contrast=False)
+        mi.Bitmap(_srgb8(img)).write(str(tmp))
 
 
 def similarity(img: np.ndarray, ref: np.ndarray) -> tuple[float, float]:
@@ -110,9 +111,8 @@ def focal_stack(design, content, out_dir, spec: FocalStackSpec | None = None, pr
 
     Returns ``(index, stack)``: the ``index.json`` document and the images in
     memory, ``stack = {"fov_deg", "images": {(kind, focus_mm): (H, W, 3)},
-    "references": {kind: image}, "content_scene"}``, where the references are
-    the natural view and the display seen through a pinhole pupil (one view,
-    no defocus), for focus-cue analysis.
+    "reference", "content_scene"}``, where ``reference`` is the natural view
+    through a pinhole pupil (everything sharp), for focus-cue analysis.
     """
     from ..fileio import write_json
     from ..ini.model import model_at_depth
@@ -191,16 +191,12 @@ def focal_stack(design, content, out_dir, spec: FocalStackSpec | None = None, pr
             images.append({"kind": kind, "focus_mm": float(f), "exr": f"{tag}.exr", "png": f"{tag}.png",
                            "spp": spec.spp, "render_s": round(secs, 3)})
             log(f"{kind:8s} focus {f:7.1f} mm: {W}x{H} at {spec.spp} spp in {secs:.1f} s")
-        # Sharp references, through a pinhole pupil (one view, no defocus):
-        # the natural view and the display.
+        # The sharp reference: the natural view through a pinhole pupil (no defocus).
         eye = EyeSpec("ideal", 0.01, math.inf, (fx, fy), (W, H))
-        references = {}
-        for kind in ("natural", "display"):
-            references[kind], secs = render(scene_for(kind, eye))
-            write_exr(out / f"reference_pinhole_{kind}.exr", references[kind],
-                      dict(base_meta, kind=f"reference_{kind}", pupil_mm=0.01, spp=spec.spp,
-                           render_s=round(secs, 3)))
-            write_png(out / f"reference_pinhole_{kind}.png", references[kind])
+        reference, secs = render(scene_for("natural", eye))
+        write_exr(out / "reference_pinhole.exr", reference,
+                  dict(base_meta, kind="reference", pupil_mm=0.01, spp=spec.spp, render_s=round(secs, 3)))
+        write_png(out / "reference_pinhole.png", reference)
     finally:
         release(key)
     for rec in images:
@@ -218,11 +214,11 @@ def focal_stack(design, content, out_dir, spec: FocalStackSpec | None = None, pr
                        "exr": "elemental_images.exr", "png": "elemental_images.png",
                        "method": spec.ei_method, "render_s": round(t_ei, 3)},
            "images": images,
-           "references": [{"kind": k, "exr": f"reference_pinhole_{k}.exr", "png": f"reference_pinhole_{k}.png",
-                           "pupil_diameter_mm": 0.01} for k in references],
+           "reference": {"exr": "reference_pinhole.exr", "png": "reference_pinhole.png",
+                         "pupil_diameter_mm": 0.01},
            "contact_sheet": sheet, "total_s": round(time.perf_counter() - t_all, 3)}
     write_json(out / "index.json", doc)
-    stack = {"fov_deg": (fx, fy), "references": references, "content_scene": content_scene,
+    stack = {"fov_deg": (fx, fy), "reference": reference, "content_scene": content_scene,
              "images": {(k, f): v for f, pair in by_focus.items() for k, v in pair.items()}}
     return doc, stack
 
