@@ -144,7 +144,7 @@ def plot(doc: dict, path) -> str:
             ax.axvline(r["focus_diopters"], color=c, ls=":", lw=1)
             ax.axvline(r["sharpest_diopters"], color=c, ls="--", lw=1)
         ax.set_xlabel("depth of the content along the wall (D)")
-        ax.set_ylabel("sharpness (band-pass energy / pinhole-pupil view)")
+        ax.set_ylabel("sharpness / pinhole view")
         ax.set_title("through the display" if kind == "display" else "natural view")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
