@@ -3,9 +3,9 @@
 * spp: the analytic display path (eye rays traced back through the design)
   rendered by Mitsuba at 4 … 256 spp, against a 4096-spp render of the same
   path (the converged reference): relative RMSE (RMSE / mean) and seconds.
-* tessellation: the mesh path (Mitsuba meshes of the optics, 8 … 64 segments
-  per semi-diameter and per lenslet) against the analytic path with the same
-  eye rays (common random numbers, :mod:`lfsim.render.accuracy`), so only the
+* tessellation: the mesh path (Mitsuba meshes of the optics at 1/8 … 2 ×
+  the default segment counts, lfsim.render.meshes.tessellation) against the
+  analytic path with the same eye rays (common random numbers, :mod:`lfsim.render.accuracy`), so only the
   geometric error is left; seconds include building and loading the meshes.
 
 Scene: the Fig. 9 wall's elemental images on each design, CDP 750 mm, ideal
@@ -41,6 +41,7 @@ from lfsim.render.display import DisplayLayout  # noqa: E402
 from lfsim.render.elemental import elemental_images  # noqa: E402
 from lfsim.render.eye import EyeSpec  # noqa: E402
 from lfsim.render.focal_stack import INTEGRATOR, render  # noqa: E402
+from lfsim.render.meshes import tessellation  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -51,12 +52,12 @@ def main(argv=None) -> int:
     res = (64, 37) if args.quick else (128, 74)
     spps = [4, 16, 64] if args.quick else [4, 16, 64, 256]
     ref_spp = 1024 if args.quick else 4096
-    segs = [8, 16, 32] if args.quick else [8, 16, 32, 64]
+    dens = [0.25, 0.5, 1.0] if args.quick else [0.125, 0.25, 0.5, 1.0, 2.0]
     pair_spp = 16 if args.quick else 64
     content = load_content(ROOT / "scenes" / "fig9_wall.toml")
     cscene = mi.load_dict(scene_dict(content))
     doc = {"resolution": list(res), "reference_spp": ref_spp, "pair_spp": pair_spp, "designs": {}}
-    for name in ("ini_ideal", "ini_coaxial"):
+    for name in ("ini_ideal", "ini_coaxial", "ini_freeform"):
         design = lfsim.load(ROOT / "scenes" / f"{name}.toml")
         model = model_at_depth(design, 1000.0 / 750.0)
         layout = DisplayLayout.from_model(model)
@@ -75,10 +76,10 @@ def main(argv=None) -> int:
             img, secs = analytic(spp, 0)
             rows_spp.append({"spp": spp, "rel_rmse": relative_rmse(img, ref), "seconds": secs})
         display_eye.release(key)
-        pairs = paired_renders(model, layout, display, eye, spp=pair_spp, segments=segs)
+        pairs = paired_renders(model, layout, display, eye, spp=pair_spp, densities=dens)
         base, t_an = pairs["analytic"]
-        rows_seg = [{"segments": S, "rel_rmse": relative_rmse(pairs[S][0], base), "seconds": pairs[S][1]}
-                    for S in segs]
+        rows_seg = [{"density": S, **tessellation(S), "rel_rmse": relative_rmse(pairs[S][0], base),
+                     "seconds": pairs[S][1]} for S in dens]
         doc["designs"][name] = {"spp": rows_spp, "reference_seconds": t_ref, "tessellation": rows_seg,
                                 "analytic_pair_seconds": t_an}
         print(f"\n{name}: analytic path, {res[0]}x{res[1]} px, vs {ref_spp} spp ({t_ref:.1f} s)")
@@ -86,9 +87,10 @@ def main(argv=None) -> int:
         for r in rows_spp:
             print(f"  {r['spp']:5d}  {r['rel_rmse']:9.4f}  {r['seconds']:8.2f}")
         print(f"  mesh path vs analytic, same eye rays ({pair_spp} spp; analytic {t_an:.2f} s)")
-        print("  segments  rel. RMSE   seconds")
+        print("  density  segments (lens/lenslet/prism)  rel. RMSE   seconds")
         for r in rows_seg:
-            print(f"  {r['segments']:8d}  {r['rel_rmse']:9.5f}  {r['seconds']:8.2f}")
+            segs = f"{r['segments']}/{r['lenslet_segments']}/{r['prism_segments']}"
+            print(f"  {r['density']:7.3f}  {segs:>29s}  {r['rel_rmse']:9.5f}  {r['seconds']:8.2f}")
     out = ROOT / "benchmarks" / "results" / "render_error_vs_time.json"
     write_json(out, doc)
     _plot(doc, ROOT / "docs" / "img" / "render_error_vs_time.png")
@@ -111,9 +113,9 @@ def _plot(doc, path):
         ys = [max(r["rel_rmse"], 1e-6) for r in d["tessellation"]]
         axes[1].loglog(xs, ys, "s-", label=name)
         for r, x, y in zip(d["tessellation"], xs, ys):
-            axes[1].annotate(f"{r['segments']}", (x, y), fontsize=7)
+            axes[1].annotate(f"×{r['density']:g}", (x, y), fontsize=7)
     axes[0].set_title(f"analytic path: spp vs {doc['reference_spp']}-spp reference")
-    axes[1].set_title(f"mesh vs analytic path, same rays ({doc['pair_spp']} spp)")
+    axes[1].set_title(f"mesh vs analytic, same rays ({doc['pair_spp']} spp); × default tessellation")
     for ax in axes:
         ax.set_xlabel("seconds")
         ax.set_ylabel("RMSE / mean")

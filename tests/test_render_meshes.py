@@ -255,7 +255,8 @@ def test_mesh_trace_matches_lfsim_coaxial(mi, coaxial):
         rms = [v[1] for v in vals]
         assert rms[0] > rms[1] > rms[2], (label, rms)
         assert rms[0] / rms[2] > 8  # ~second-order convergence (16x ideal)
-    assert segs[-1] == M.DEFAULT_SEGMENTS == M.DEFAULT_LENSLET_SEGMENTS
+    # The defaults are at least this dense, so the bounds below hold for them too.
+    assert segs[-1] <= min(M.DEFAULT_SEGMENTS, M.DEFAULT_LENSLET_SEGMENTS)
     assert rows["after MLA"][-1][1] < 0.008 / 20  # 1/20 display pixel
     assert rows["end of relay"][-1][1] < 0.020 / 20
 

@@ -320,9 +320,15 @@ class SequentialTracer:
                         m_idx = T.Int32(dr.floor(dr.detach((x0 - cx) / px) + 0.5 * arr.m))
                         n_idx = T.Int32(dr.floor(dr.detach((y0 - cy) / py) + 0.5 * arr.n))
                     outside = (m_idx < 0) | (m_idx >= arr.m) | (n_idx < 0) | (n_idx >= arr.n)
-                    fail(outside, Status.VIGNETTED, i)
-                    m_idx = dr.select(outside, 0, m_idx)
-                    n_idx = dr.select(outside, 0, n_idx)
+                    if cells == "per_surface":
+                        # The vertex-plane crossing is only a first guess: start
+                        # from the nearest edge cell; the hit on the face decides.
+                        m_idx = dr.clip(m_idx, 0, arr.m - 1)
+                        n_idx = dr.clip(n_idx, 0, arr.n - 1)
+                    else:
+                        fail(outside, Status.VIGNETTED, i)
+                        m_idx = dr.select(outside, 0, m_idx)
+                        n_idx = dr.select(outside, 0, n_idx)
                     cell[s.array] = (m_idx, n_idx)
                     if i == first_group:
                         lens_m = dr.select(outside, -1, m_idx)
@@ -376,6 +382,10 @@ class SequentialTracer:
             if offset is not None and clip:
                 half = 0.5 * (1.0 + self.edge_tol)
                 crossed = (dr.abs(hit.x) > half * px) | (dr.abs(hit.y) > half * py)
+                if cells == "per_surface":
+                    # After the move to the hit's cell, a hit still outside it
+                    # lies beyond the array's outer edge.
+                    fail(crossed, Status.VIGNETTED, i)
                 fail(crossed, Status.WRONG_LENSLET, i)
 
             # Interaction.

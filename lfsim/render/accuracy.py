@@ -72,13 +72,16 @@ def _image(values: np.ndarray, weights: np.ndarray, pix: np.ndarray, W: int, H: 
 
 
 def paired_renders(model, layout, display: np.ndarray, eye_spec, spp: int = 16,
-                   segments=(8, 16, 32, 64), seed: int = 0) -> dict:
+                   densities=(0.25, 0.5, 1.0, 2.0), seed: int = 0) -> dict:
     """Analytic and mesh images from the same eye rays.
 
-    Returns ``{"analytic": (image, seconds), segments: (image, seconds), ...}``;
-    the mesh times include building and loading the meshes.
+    ``densities``: tessellations as multiples of the default segment counts
+    (:func:`lfsim.render.meshes.tessellation`). Returns ``{"analytic": (image,
+    seconds), density: (image, seconds), ...}``; the mesh times include
+    building and loading the meshes.
     """
     from .analytic import ReverseOptics
+    from .meshes import tessellation
     from .optics_scene import optics_shapes, trace_scene
 
     mi = mitsuba()
@@ -91,10 +94,10 @@ def paired_renders(model, layout, display: np.ndarray, eye_spec, spp: int = 16,
     L = display_lookup(layout, display, p[:, :2], ok & (dd[:, 2] < 0))
     out["analytic"] = (_image(L, w, pix, W, H), time.perf_counter() - t0)
     og, dg = o @ model.R_vw.T + model.o_vw, d @ model.R_vw.T
-    for S in segments:
+    for S in densities:
         t0 = time.perf_counter()
         scene = mi.load_dict({"type": "scene", **optics_shapes(model.design, values=model.values(0),
-                                                                 segments=S, lenslet_segments=S)})
+                                                                 **tessellation(S))})
         res = trace_scene(scene, og, dg, max_depth=64)
         dz = res.directions[:, 2]
         t = (layout.z - res.positions[:, 2]) / np.where(dz < 0, dz, -1.0)

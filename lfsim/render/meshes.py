@@ -45,14 +45,28 @@ from .. import backend
 from ..optics.prescription import Aperture, System
 from ..optics.surfaces import Shape, normal, sag
 
-#: Default segments per semi-diameter of an ordinary surface, and per lenslet
-#: pitch. Flat triangles with interpolated analytic normals converge as 1/S²;
-#: on scenes/ini_coaxial.toml (display rays vs lfsim's float64 tracer) S = 32
-#: gives 0.08 µm RMS 3 mm after the MLA, 0.5 µm RMS 50 mm after the relay and
-#: 0.04 arcmin RMS ray angle at the viewing window (pixel: 8 µm, 2.3 arcmin),
-#: and the 17 × 9 MLA builds in under a second.
-DEFAULT_SEGMENTS = 32
+#: Default tessellation: segments per semi-diameter of an ordinary surface,
+#: per lenslet pitch, and per half-width of a freeform prism's largest face.
+#: Flat triangles with interpolated analytic normals converge as 1/S²; the
+#: prism is denser because its faces are the largest and its mirror doubles
+#: any normal error. Measured with benchmarks/render_error_vs_time.py (mesh
+#: path vs analytic path, same eye rays, Fig. 9 wall): relative RMSE 0.7 % on
+#: scenes/ini_coaxial.toml and 0.7 % on scenes/ini_freeform.toml at these
+#: values; the 17 × 9 MLA builds in under a second.
+DEFAULT_SEGMENTS = 64
 DEFAULT_LENSLET_SEGMENTS = 32
+DEFAULT_PRISM_SEGMENTS = 128
+
+
+def tessellation(density: float = 1.0) -> dict[str, int]:
+    """Segment counts at ``density`` × the defaults (keyword arguments of
+    :func:`lfsim.render.optics_scene.optics_shapes`)."""
+    if not density > 0:
+        raise ValueError(f"tessellation density = {density!r}: expected > 0")
+    return {"segments": max(2, round(density * DEFAULT_SEGMENTS)),
+            "lenslet_segments": max(2, round(density * DEFAULT_LENSLET_SEGMENTS)),
+            "prism_segments": max(2, round(density * DEFAULT_PRISM_SEGMENTS))}
+
 
 _TWO_PI = 2.0 * math.pi
 
@@ -711,7 +725,7 @@ def mount(model: SurfaceModel, i: int, region: Aperture, array: str | None = Non
 
 
 # ---------------------------------------------------------------- prisms
-def prism_solid(model: SurfaceModel, surfaces: list[int], segments: int = DEFAULT_SEGMENTS,
+def prism_solid(model: SurfaceModel, surfaces: list[int], segments: int = DEFAULT_PRISM_SEGMENTS,
                 name: str | None = None, footprints: dict | None = None, margin: float = 0.1) -> Solid:
     """A freeform prism: its physical faces (a ``same_as`` face once, over the
     union of its uses' apertures) closed by bevels and two side caps.

@@ -193,7 +193,7 @@ def _resolve(system, ref) -> int:
 
 def optics_parts(design, values=None, wavelength_nm=None, segments: int = _m.DEFAULT_SEGMENTS,
                  lenslet_segments: int = _m.DEFAULT_LENSLET_SEGMENTS, span=None,
-                 mounts: bool = True) -> list[OpticsPart]:
+                 mounts: bool = True, prism_segments: int = _m.DEFAULT_PRISM_SEGMENTS) -> list[OpticsPart]:
     """The meshes and BSDFs of :func:`optics_shapes` (numpy, before export).
 
     ``mounts``: absorbing rings around every lens face with a clear aperture
@@ -214,7 +214,7 @@ def optics_parts(design, values=None, wavelength_nm=None, segments: int = _m.DEF
             if kind == "lens":
                 solid = _m.lens_solid(model, idx, segments, comp.name)
             elif kind == "prism":
-                solid = _m.prism_solid(model, idx, segments, comp.name, footprints=footprints(design, model))
+                solid = _m.prism_solid(model, idx, prism_segments, comp.name, footprints=footprints(design, model))
             else:
                 solid = _m.lenslet_array_solid(model, idx, comp.name, lenslet_segments)
             for mesh in solid.meshes:
@@ -284,7 +284,8 @@ def _mesh_dir(mesh_dir) -> Path:
 
 def optics_shapes(design, values=None, wavelength_nm=None, segments: int = _m.DEFAULT_SEGMENTS,
                   lenslet_segments: int = _m.DEFAULT_LENSLET_SEGMENTS, span=None,
-                  mesh_dir=None, mounts: bool = True) -> dict[str, dict]:
+                  mesh_dir=None, mounts: bool = True,
+                  prism_segments: int = _m.DEFAULT_PRISM_SEGMENTS) -> dict[str, dict]:
     """Mitsuba shape dicts of a design's optics (display and eye excluded).
 
     Parameters
@@ -303,6 +304,9 @@ def optics_shapes(design, values=None, wavelength_nm=None, segments: int = _m.DE
     span : (first, last), optional
         Only components whose surfaces lie within these surfaces (names or
         indices, inclusive).
+    prism_segments : int
+        Segments per half-width of a freeform prism's largest face
+        (:func:`lfsim.render.meshes.tessellation` scales all three together).
     mesh_dir : path, optional
         Where the PLY files go (default: one temporary folder per process);
         files are named by content hash.
@@ -317,7 +321,8 @@ def optics_shapes(design, values=None, wavelength_nm=None, segments: int = _m.DE
     _bsdfs.register()
     out_dir = _mesh_dir(mesh_dir)
     shapes: dict[str, dict] = {}
-    for part in optics_parts(design, values, wavelength_nm, segments, lenslet_segments, span, mounts):
+    for part in optics_parts(design, values, wavelength_nm, segments, lenslet_segments, span, mounts,
+                             prism_segments):
         m = part.mesh
         blob = ply_bytes(m)
         path = out_dir / f"{m.name}-{hashlib.sha1(blob).hexdigest()[:16]}.ply"
