@@ -291,10 +291,12 @@ def cmd_focal_stack(args) -> int:
         raise InputError(f"--pupil-mm = {pupil!r}: must be > 0")
     if args.spp < 1:
         raise InputError(f"--spp = {args.spp}: must be >= 1")
+    if not (math.isfinite(args.tessellation) and args.tessellation > 0):
+        raise InputError(f"--tessellation = {args.tessellation!r}: must be > 0")
     res = _int_pair(args.resolution, "--resolution") if args.resolution else None
     spec = FocalStackSpec(focus_mm=[float(f) for f in focus], cdp_mm=cdp, pupil_diameter_mm=float(pupil),
                           spp=args.spp, resolution=res, seed=args.seed, eye_model=args.eye,
-                          mla_cells=args.mla_cells)
+                          mla_cells=args.mla_cells, optics=args.optics, tessellation=args.tessellation)
     quiet = args.json or not sys.stderr.isatty()
     log = (lambda *a, **k: None) if args.json else (lambda msg: print(msg, file=sys.stderr))
     doc, stack = focal_stack(design, content, args.out, spec, progress=not quiet, log=log)
@@ -388,6 +390,11 @@ def build_parser() -> argparse.ArgumentParser:
     fs.add_argument("--mla-cells", choices=("per_surface", "fixed"), default="per_surface",
                     help="per_surface: one piece of glass, rays crossing between lenslets inside it go on "
                     "(crosstalk, default); fixed: baffled cells (an ideal aperture array)")
+    fs.add_argument("--optics", choices=("analytic", "mesh"), default="analytic",
+                    help="analytic: eye rays traced through the design inside the sensor (exact, default); "
+                    "mesh: the optics as Mitsuba meshes, path-traced")
+    fs.add_argument("--tessellation", type=float, default=1.0,
+                    help="mesh density as a multiple of the defaults (--optics mesh; default 1)")
     fs.add_argument("--out", default="renders/focal_stack", help="output directory (default renders/focal_stack)")
     fs.add_argument("--json", action="store_true")
     fs.set_defaults(func=cmd_focal_stack)

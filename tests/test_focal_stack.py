@@ -41,6 +41,7 @@ def test_focal_stack_cli_writes_the_stack(scenes, tmp_path, capsys):
     (["--spp", "0"], "--spp"),
     (["--cdp-mm", "abc"], "--cdp-mm"),
     (["--content", "missing.toml"], "missing.toml"),
+    (["--tessellation", "0"], "--tessellation"),
 ])
 def test_focal_stack_bad_input(scenes, tmp_path, capsys, args, msg):
     base = ["focal-stack", str(scenes / "ini_ideal.toml"), "--content", str(scenes / "fig9_wall.toml"),
@@ -49,3 +50,27 @@ def test_focal_stack_bad_input(scenes, tmp_path, capsys, args, msg):
     err = capsys.readouterr().err.strip()
     assert msg in err and "\n" not in err
     assert not (tmp_path / "o" / "index.json").exists()
+
+
+def test_mesh_path_focal_stack_matches_the_analytic_path(scenes, tmp_path):
+    """--optics mesh (display + optics meshes + eye at the viewing window, path-traced
+    by Mitsuba) and the analytic path differ by Monte Carlo noise only."""
+    import lfsim
+    from lfsim.design.content import load_content
+    from lfsim.render.accuracy import relative_rmse
+    from lfsim.render.focal_stack import FocalStackSpec, focal_stack
+
+    design = lfsim.load(scenes / "ini_coaxial.toml")
+    content = load_content(scenes / "fig9_wall.toml")
+    imgs = {}
+    for optics, seed in (("mesh", 1), ("analytic", 2), ("analytic", 3)):
+        spec = FocalStackSpec(focus_mm=[750.0], spp=16, resolution=(48, 28), seed=seed, natural=False,
+                              optics=optics)
+        doc, stack = focal_stack(design, content, tmp_path / f"{optics}{seed}", spec, log=lambda *a: None)
+        assert doc["optics"] == optics
+        imgs[(optics, seed)] = stack["images"][("display", 750.0)]
+    mesh, a2, a3 = imgs[("mesh", 1)], imgs[("analytic", 2)], imgs[("analytic", 3)]
+    noise = relative_rmse(a3, a2)
+    assert np.isfinite(mesh).all() and mesh.mean() > 0.1
+    assert relative_rmse(mesh, a2) < 1.25 * noise
+    assert abs(mesh.mean() / a2.mean() - 1) < 0.03

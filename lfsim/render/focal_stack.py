@@ -6,8 +6,10 @@ For a design, a content scene and a CDP depth:
 2. the elemental images: every display pixel's real chief ray traced to the
    viewing window and on into the content scene (:mod:`.elemental`);
 3. for each focus distance, the retinal image of the display through the
-   optics (the analytic path: :mod:`.display_eye`, the scene holds only the
-   display) and the natural view of the content through the same eye (the
+   optics — the analytic path (:mod:`.display_eye`: the scene holds only the
+   display, the sensor traces the design) or the mesh path (the display, the
+   optics as meshes with lfsim's BSDFs and the eye at the viewing window,
+   path-traced by Mitsuba) — and the natural view of the content through the same eye (the
    ground truth), with SSIM and PSNR between them (scikit-image);
 4. float32 EXRs with metadata, PNG previews, a contact sheet and
    ``index.json`` (DESIGN.md contract), all written atomically.
@@ -28,6 +30,9 @@ import numpy as np
 from . import mitsuba
 
 INTEGRATOR = {"type": "path", "max_depth": 2, "hide_emitters": False}
+#: Through the optics meshes: every face is a delta interaction, so a path
+#: needs (faces + 2) bounces and must not be cut short by roulette.
+MESH_INTEGRATOR = {"type": "path", "max_depth": 256, "rr_depth": 1024, "hide_emitters": False}
 
 
 @dataclass
@@ -45,6 +50,8 @@ class FocalStackSpec:
     ei_samples: int = 1
     natural: bool = True
     mla_cells: str = "per_surface"  # "fixed": baffled lenslet cells (an ideal aperture array)
+    optics: str = "analytic"  # "mesh": Mitsuba meshes of the optics, path-traced
+    tessellation: float = 1.0  # mesh density, × lfsim.render.meshes defaults
 
 
 def _srgb8(img: np.ndarray) -> np.ndarray:
@@ -150,6 +157,7 @@ def focal_stack(design, content, out_dir, spec: FocalStackSpec | None = None, pr
     if bar:
         bar.close()
     base_meta = {"design": design.path or design.name, "content": content.path, "cdp_mm": spec.cdp_mm,
+                 "optics": spec.optics,
                  "pupil_mm": spec.pupil_diameter_mm, "eye": spec.eye_model, "seed": spec.seed,
                  "fov_x_deg": fx, "fov_y_deg": fy}
     write_exr(out / "elemental_images.exr", display, dict(base_meta, kind="elemental_images",
@@ -157,10 +165,26 @@ def focal_stack(design, content, out_dir, spec: FocalStackSpec | None = None, pr
     write_png(out / "elemental_images.png", display)
     log(f"elemental images: {layout.width}x{layout.height} px ({spec.ei_method} chief rays) in {t_ei:.1f} s")
 
+    if spec.optics not in ("analytic", "mesh"):
+        raise ValueError(f"optics = {spec.optics!r}: expected 'analytic' or 'mesh'")
     key = attach(ReverseOptics(model, 0, cells=spec.mla_cells))
+    shapes = None
+    if spec.optics == "mesh":
+        from .meshes import tessellation
+        from .optics_scene import optics_shapes
+
+        t0 = time.perf_counter()
+        shapes = optics_shapes(design, values=model.values(0), **tessellation(spec.tessellation))
+        log(f"optics meshes: {len(shapes)} shapes at {spec.tessellation:g} x default density "
+            f"in {time.perf_counter() - t0:.1f} s")
+        vw = np.eye(4)
+        vw[:3, :3], vw[:3, 3] = model.R_vw, model.o_vw
 
     def scene_for(kind, eye):
-        """The display through the optics (analytic path), or the content seen directly."""
+        """The display through the optics (analytic or mesh path), or the content seen directly."""
+        if kind == "display" and shapes is not None:
+            return {"type": "scene", "display": layout.emitter_dict(display), **shapes,
+                    "sensor": eye.sensor_dict(vw, spec.spp, spec.seed), "integrator": MESH_INTEGRATOR}
         if kind == "display":
             return {"type": "scene", "display": layout.emitter_dict(display),
                     "sensor": display_sensor(eye, key, spec.spp, spec.seed), "integrator": INTEGRATOR}
@@ -208,7 +232,8 @@ def focal_stack(design, content, out_dir, spec: FocalStackSpec | None = None, pr
     doc = {"design": design.path or design.name, "content": content.path, "cdp_mm": spec.cdp_mm,
            "cdp_diopters": cdp_D, "tunable_power_diopters": state.tunable_power_diopters,
            "pupil_diameter_mm": spec.pupil_diameter_mm, "eye_model": spec.eye_model,
-           "mla_cells": spec.mla_cells,
+           "mla_cells": spec.mla_cells, "optics": spec.optics,
+           **({"tessellation": spec.tessellation} if spec.optics == "mesh" else {}),
            "fov_deg": [fx, fy], "resolution": [W, H], "seed": spec.seed,
            "display": {"width": layout.width, "height": layout.height, "pixel_pitch_mm": layout.pixel_pitch,
                        "exr": "elemental_images.exr", "png": "elemental_images.png",
