@@ -9,7 +9,7 @@ import numpy as np
 
 from ..backend import from_numpy
 from ..optics.prescription import System
-from .loader import ini_from_dict, load_system, system_from_dict
+from .loader import ini_from_dict, load_system, optimize_from_dict, system_from_dict
 
 
 @dataclass
@@ -56,6 +56,8 @@ class Design:
         self._tracers: dict = {}
         #: The validated ``[ini]`` section (:class:`IniSpec`), None for a plain lens.
         self.ini = ini_from_dict(self.raw, system, path or "<dict>")
+        #: The validated ``[optimize]`` section (:class:`OptimizeSpec`), None when absent.
+        self.optimize = optimize_from_dict(self.raw, system, self.ini, path or "<dict>")
 
     @classmethod
     def from_dict(cls, data: dict, file: str = "<dict>") -> "Design":

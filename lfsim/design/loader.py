@@ -324,6 +324,13 @@ def ini_from_dict(data: dict, system: System, file: str = "<dict>"):
     return parse_ini(_Ctx(file), data, system)
 
 
+def optimize_from_dict(data: dict, system: System, ini=None, file: str = "<dict>"):
+    """The validated ``[optimize]`` section (:class:`~lfsim.design.optimize_section.OptimizeSpec`) or None."""
+    from .optimize_section import parse_optimize
+
+    return parse_optimize(_Ctx(file), data, system, ini)
+
+
 def system_from_dict(data: dict, file: str = "<dict>") -> System:
     """Validate a parsed design table and build the optics ``System``."""
     ctx = _Ctx(file)

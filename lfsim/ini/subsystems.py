@@ -182,35 +182,12 @@ def trace_rays(model: IniModel, s, m, n, rho, k, iterations: int = 30):
     """
     tr, T = model.tracer, model.T
     sp = model.spec
-    s_r = np.asarray(s, dtype=np.float64).reshape(-1, 2)
-    rho_r = np.broadcast_to(np.asarray(rho, dtype=np.float64), s_r.shape)
-    m_r = np.broadcast_to(np.asarray(m), len(s_r)).astype(np.int32)
-    n_r = np.broadcast_to(np.asarray(n), len(s_r)).astype(np.int32)
-    k_r = np.broadcast_to(np.asarray(k), len(s_r)).astype(np.uint32)
-    c_r = model.lenslet_center(m_r, n_r)
-    t = model.aim(s_r, c_r, rho_r)
-    target = rho_r * model.stop_half
-    JSt_inv = np.linalg.inv(model.JS[:, 2:])
+    s_r, m_r, n_r, k_r, t, err = _aim(model, s, m, n, rho, k, iterations)
     P = tr.params(values=model.values())
     block = from_numpy(T.UInt32, k_r)
     lens = from_numpy(T.Int32, m_r, n_r)
     z0 = -model.g
-    frames = tr.frames_numpy()
-    R_s, o_s = frames[sp.stop]
-    err = np.zeros(len(t))
     with dr.suspend_grad():
-        for _ in range(iterations):
-            o = np.column_stack([s_r, np.full(len(t), z0)])
-            d = np.column_stack([t, np.ones(len(t))])
-            out = tr.trace(P, tr.rays(o, d), block=block, lenslet=lens, first=0, last=sp.stop, clip=False)
-            hit = np.stack([np.asarray(out.p.x), np.asarray(out.p.y), np.asarray(out.p.z)], axis=1)
-            local = (hit - o_s) @ R_s
-            miss = local[:, :2] - c_r - target
-            alive = np.asarray(out.status) == 0
-            err = np.where(alive[:, None], miss, 0.0)
-            if np.max(np.abs(err)) < 1e-13:
-                break
-            t = t - err @ JSt_inv.T
         o = np.column_stack([s_r, np.full(len(t), z0)])
         d = np.column_stack([t, np.ones(len(t))])
         out = tr.trace(P, tr.rays(o, d), block=block, lenslet=lens, first=0, last=sp.viewing_window)
@@ -227,3 +204,162 @@ def trace_rays(model: IniModel, s, m, n, rho, k, iterations: int = 30):
     opl = np.where(ok, opl, 0.0)
     worst = float(np.max(np.abs(err[ok]))) if np.any(ok) else 0.0
     return pl[:, :2], dl, opl, status, worst
+
+
+def _aim(model: IniModel, s, m, n, rho, k, iterations: int):
+    """Launch slopes that put each ray on its pupil point of its lenslet's stop
+    (paraxial aim, then real-ray Newton steps with the paraxial stop map as the
+    Jacobian). Returns the flat inputs, the slopes (N, 2) and the stop miss."""
+    tr, T = model.tracer, model.T
+    sp = model.spec
+    s_r = np.asarray(s, dtype=np.float64).reshape(-1, 2)
+    rho_r = np.broadcast_to(np.asarray(rho, dtype=np.float64), s_r.shape)
+    m_r = np.broadcast_to(np.asarray(m), len(s_r)).astype(np.int32)
+    n_r = np.broadcast_to(np.asarray(n), len(s_r)).astype(np.int32)
+    k_r = np.broadcast_to(np.asarray(k), len(s_r)).astype(np.uint32)
+    c_r = model.lenslet_center(m_r, n_r)
+    t = model.aim(s_r, c_r, rho_r)
+    target = rho_r * model.stop_half
+    JSt_inv = np.linalg.inv(model.JS[:, 2:])
+    P = tr.params(values=model.values())
+    block = from_numpy(T.UInt32, k_r)
+    lens = from_numpy(T.Int32, m_r, n_r)
+    z0 = -model.g
+    R_s, o_s = tr.frames_numpy()[sp.stop]
+    err = np.zeros(len(t))
+    with dr.suspend_grad():
+        for _ in range(iterations):
+            o = np.column_stack([s_r, np.full(len(t), z0)])
+            d = np.column_stack([t, np.ones(len(t))])
+            out = tr.trace(P, tr.rays(o, d), block=block, lenslet=lens, first=0, last=sp.stop, clip=False)
+            hit = np.stack([np.asarray(out.p.x), np.asarray(out.p.y), np.asarray(out.p.z)], axis=1)
+            local = (hit - o_s) @ R_s
+            miss = local[:, :2] - c_r - target
+            alive = np.asarray(out.status) == 0
+            err = np.where(alive[:, None], miss, 0.0)
+            if np.max(np.abs(err)) < 1e-13:
+                break
+            t = t - err @ JSt_inv.T
+    return s_r, m_r, n_r, k_r, t, err
+
+
+@dataclass
+class RayJacobian:
+    """Aimed rays at the viewing window and their derivatives w.r.t. design columns.
+
+    Values (N rays): ``pos`` (N, 2), ``dir`` (N, 3) in the viewing-window
+    frame, ``status`` (N,) of the unclipped trace (apertures and lenslet cells
+    not applied, so a ray that leaves its cell keeps a smooth path),
+    ``surf`` (N, S, 2) hit (x, y) on each recorded surface relative to the
+    ray's lenslet axis (global x, y: the MLA is untilted), ``cos_in`` (N, S)
+    cosine of incidence there. Derivatives ``d_pos`` (N, 2, K), ``d_dir``
+    (N, 3, K), ``d_surf`` (N, S, 2, K), ``d_cos_in`` (N, S, K) are total
+    derivatives: the launch slope is re-aimed (implicit function theorem on
+    the stop hit), so every ray keeps its pupil point.
+    """
+
+    pos: np.ndarray
+    dir: np.ndarray
+    status: np.ndarray
+    surf: np.ndarray
+    cos_in: np.ndarray
+    d_pos: np.ndarray
+    d_dir: np.ndarray
+    d_surf: np.ndarray
+    d_cos_in: np.ndarray
+
+
+def trace_rays_jacobian(model: IniModel, s, m, n, rho, k, columns, record=(), iterations: int = 30,
+                        derivatives: bool = True) -> RayJacobian:
+    """:func:`trace_rays` plus forward-mode derivatives, in one Dr.Jit launch.
+
+    ``columns``: K pairs ``(parameter name, CDP state or None)``; a column
+    moves that parameter in every state (None) or in one state only (e.g. the
+    tunable lens's power). The rays are replicated K + 2 times: copy j moves
+    column j, the last two copies move the launch slope (x, y); a single AD
+    seed then yields every column in one forward pass, and the aim correction
+    ``dt/dp = −(∂stop/∂t)⁻¹ ∂stop/∂p`` turns partial into total derivatives.
+    ``record``: surface indices whose hits (relative to the lenslet axis) and
+    incidence cosines are returned too.
+    """
+    tr, T = model.tracer, model.T
+    sp = model.spec
+    s_r, m_r, n_r, k_r, t, _ = _aim(model, s, m, n, rho, k, iterations)
+    N, nb, npar = len(s_r), len(model.depths), tr.n_params
+    K = len(columns) if derivatives else 0
+    C = K + 2 if derivatives else 1
+    base = np.concatenate([model.values(i) for i in range(nb)])
+    mask = np.zeros((C, nb, npar))
+    for c, (name, state) in enumerate(columns[:K]):
+        if name not in tr.index:
+            raise ValueError(f"unknown parameter {name!r}: see parameter_names()")
+        if state is None:
+            mask[c, :, tr.index[name]] = 1.0
+        else:
+            mask[c, int(state), tr.index[name]] = 1.0
+    record = list(record)
+    R_s, o_s = tr.frames_numpy()[sp.stop]
+    c_r = model.lenslet_center(m_r, n_r)
+    seed = dr.zeros(T.Float, 1)
+    dr.enable_grad(seed)
+    # One scalar seed, gathered to each width it is used at (no broadcast of a
+    # width-1 variable across arrays of different widths).
+    seed_p = dr.gather(T.Float, seed, dr.zeros(T.UInt32, C * nb * npar))
+    P = T.Float(np.tile(base, C)) + seed_p * T.Float(mask.ravel())
+    seed_r = dr.gather(T.Float, seed, dr.zeros(T.UInt32, C * N))
+    j = dr.arange(T.UInt32, C * N)
+    ray = j % N
+    copy = j // N
+    g = lambda a, typ: dr.gather(typ, from_numpy(typ, a), ray)  # noqa: E731
+    block = copy * nb + g(k_r, T.UInt32)
+    tx = g(t[:, 0], T.Float) + seed_r * dr.select(copy == K, 1.0, 0.0)
+    ty = g(t[:, 1], T.Float) + seed_r * dr.select(copy == K + 1, 1.0, 0.0)
+    one = dr.full(T.Float, 1.0, C * N)
+    o = T.Array3(g(s_r[:, 0], T.Float), g(s_r[:, 1], T.Float), dr.full(T.Float, -model.g, C * N))
+    from ..optics.tracer import RayState
+
+    out = tr.trace(P, RayState(o, T.Array3(tx, ty, one)), block=block,
+                   lenslet=(g(m_r, T.Int32), g(n_r, T.Int32)), first=0, last=sp.viewing_window,
+                   record=True, clip=False)
+    Rs, os_ = tr.frames(P)
+    Rv = dr.gather(T.Matrix3, Rs[sp.viewing_window].T, block)  # global → local
+    ov = dr.gather(T.Array3, os_[sp.viewing_window], block)
+    pl = Rv @ (out.p - ov)
+    dl = Rv @ out.d
+    stop_p = out.path[sp.stop][0]
+    Rst = T.Matrix3(*(float(v) for v in R_s.T.ravel()))
+    sl = Rst @ (stop_p - T.Array3(*(float(v) for v in o_s)))
+    outs = [sl.x, sl.y, pl.x, pl.y, dl.x, dl.y, dl.z]
+    cx, cy = g(c_r[:, 0], T.Float), g(c_r[:, 1], T.Float)
+    for i in record:
+        p_i, d_i = out.path[i]
+        d_prev = out.path[i - 1][1] if i > 0 else dr.normalize(T.Array3(tx, ty, one))
+        # incidence from the directions before and after (the normal is along their difference)
+        dd = d_i - d_prev
+        nrm = dr.norm(dd)
+        cos_in = dr.select(nrm > 0, dr.abs(dr.dot(d_prev, dd)) / dr.maximum(nrm, 1e-300), 1.0)
+        outs += [p_i.x - cx, p_i.y - cy, cos_in]
+    if derivatives:
+        dr.forward_from(seed, flags=dr.ADFlag.ClearNone)
+    val = np.stack([np.asarray(v, dtype=np.float64)[:N] for v in outs], axis=1)  # (N, O)
+    status = np.asarray(out.status)[:N].astype(np.int64)
+    nS = len(record)
+    surf = val[:, 7:].reshape(N, nS, 3) if nS else np.zeros((N, 0, 3))
+    res = dict(pos=val[:, 2:4], dir=val[:, 4:7], status=status, surf=surf[..., :2], cos_in=surf[..., 2])
+    if not derivatives:
+        z = np.zeros
+        return RayJacobian(**res, d_pos=z((N, 2, 0)), d_dir=z((N, 3, 0)), d_surf=z((N, nS, 2, 0)),
+                           d_cos_in=z((N, nS, 0)))
+    G = np.stack([np.asarray(dr.grad(v), dtype=np.float64).reshape(C, N) for v in outs], axis=1)  # (C, O, N)
+    G = np.moveaxis(G, 2, 0)  # (N, C, O)
+    dp, dt = G[:, :K, :], G[:, K:, :]  # (N, K, O), (N, 2, O)
+    A = np.moveaxis(dt[:, :, 0:2], 1, 2)  # ∂stop/∂t (N, 2, 2): rows stop x/y, cols t x/y
+    ok = (status == 0) & (np.abs(np.linalg.det(A)) > 0)
+    A = np.where(ok[:, None, None], A, np.eye(2))
+    dtdp = -np.linalg.solve(A, np.moveaxis(dp[:, :, 0:2], 1, 2))  # (N, 2, K)
+    tot = np.moveaxis(dp, 1, 2) + np.einsum("nto,ntk->nok", dt, dtdp)  # (N, O, K)
+    tot = np.where(np.isfinite(tot), tot, 0.0)
+    tot[status != 0] = 0.0
+    d_surf = tot[:, 7:, :].reshape(N, nS, 3, K) if nS else np.zeros((N, 0, 3, K))
+    return RayJacobian(**res, d_pos=tot[:, 2:4], d_dir=tot[:, 4:7], d_surf=d_surf[:, :, :2],
+                       d_cos_in=d_surf[:, :, 2])

@@ -1,0 +1,366 @@
+"""The ``[optimize]`` section of a design file: what an optimization run varies and aims at.
+
+Schema (units mm, degrees, diopters)::
+
+    [optimize]
+    # Variables: parameter names of the design's parameter table
+    # (design.parameter_names()), a bare string (unbounded) or a table with
+    # optional bounds; "tunable" = the tunable lens's power at every CDP state
+    # (one variable per state, diopters; needs [ini.tunable]; its bounds default
+    # to [ini.tunable] range_diopters and must lie inside it).
+    variables = ["S3.x2y0", { name = "S1.curvature", min = -0.05, max = 0.05 },
+                 { name = "tunable", min = -2.0, max = 4.5 }]     # default: none
+    solver = "lm"            # "lm" (damped least squares) | "adam"
+    iterations = 30          # > 0
+    stages = ["mla", "relay_eyepiece", "integrated", "full"]
+                             # the workflow stages to run: any non-empty subset,
+                             # in this order; all four by default with [ini],
+                             # only "full" without (the others need [ini])
+    [optimize.sampling]      # sub-systems of the integrated stage
+    stride = [4, 2]          # every k-th lenslet along x, y (integers >= 1)
+    fields = 3               # field points per EI axis (odd: the EI centre is one)
+    pupil = 4                # Gauss–Legendre nodes per pupil axis (>= 2) for the RMS spot
+    [optimize.targets]       # all optional
+    gd_max_deg = 0.75        # Eq. (11) target, > 0 (default: [ini.analysis] gd_target_deg)
+    pa_max = 0.3             # Eq. (12) target, > 0 (default: [ini.analysis] pa_target)
+    local_distortion_max = 0.05   # per elemental image (fraction), > 0
+    crosstalk_margin = 0.02  # marginal rays stay this fraction of the pitch inside
+                             # their lenslet cell, in [0, 0.5)
+    efl_mm = nan             # eyepiece focal length target (nonzero; signed, an
+                             # inverting group has a negative EFL); nan or
+                             # absent: keep the starting design's
+    min_center_thickness = 0.3    # mm, glass, >= 0
+    min_edge_thickness = 0.3      # mm, glass, >= 0
+    min_air_gap = 0.1             # mm, >= 0
+    min_prism_thickness = 1.0     # mm, >= 0
+    tir_margin_deg = 1.0          # TIR surfaces: incidence at least this far beyond
+                                  # the critical angle, in [0, 90)
+    [optimize.weights]       # all optional, finite and >= 0
+    spot = 1.0
+    gd = 1.0
+    pa = 1.0
+    distortion = 1.0
+    crosstalk = 1.0
+    efl = 10.0
+    thickness = 1.0
+    tir = 1.0
+
+Targets taken from the starting design: ``gd_max_deg`` and ``pa_max`` left out
+of the file are filled from ``[ini.analysis]`` when the section is parsed (they
+stay ``None`` without ``[ini]``, and in :meth:`OptimizeSpec.default`, where
+:meth:`OptimizeTargets.resolve` fills them); ``efl_mm`` left out (or ``nan``) is
+``None``: keep the starting design's focal length.
+
+Parameters the file cannot carry are refused as variables: refractive indices
+(``*.index``, ``object.index``: they come from materials), the shape of a
+paraxial lens or a coordinate break, the tilt and decenter of the InI lenslet
+surfaces (move the array with ``NAME.center_x``), the viewing window's shape,
+and the tunable surface's ``power`` (vary ``"tunable"``).
+
+The section is validated here (file, key, value, what is allowed); the merit
+functions and solvers live in :mod:`lfsim.optimize`.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import re
+from dataclasses import dataclass, field, replace
+
+from ..optics.prescription import System
+from .errors import MISSING
+
+OPTIMIZE_KEYS = {"variables", "solver", "iterations", "stages", "sampling", "targets", "weights"}
+SOLVERS = ("lm", "adam")
+#: Workflow stages in the order they run.
+STAGES = ("mla", "relay_eyepiece", "integrated", "full")
+#: The variable name standing for the tunable lens's power at every CDP state.
+TUNABLE = "tunable"
+SAMPLING_KEYS = {"stride", "fields", "pupil"}
+_COEFF_RE = re.compile(r"^(A\d+|x\d+y\d+)$")
+
+
+@dataclass(frozen=True)
+class Variable:
+    """One optimization variable: a parameter-table name (or ``"tunable"``) and its bounds.
+
+    ``lower`` / ``upper`` are ``-inf`` / ``+inf`` when not given. For
+    ``"tunable"`` they are in diopters and apply to the power at every CDP state.
+    """
+
+    name: str
+    lower: float = -math.inf
+    upper: float = math.inf
+
+    @property
+    def is_tunable(self) -> bool:
+        return self.name == TUNABLE
+
+    @property
+    def bounded(self) -> bool:
+        return math.isfinite(self.lower) or math.isfinite(self.upper)
+
+
+@dataclass(frozen=True)
+class OptimizeTargets:
+    """Targets and constraint limits; ``None`` = taken from the starting design."""
+
+    gd_max_deg: float | None = None
+    pa_max: float | None = None
+    local_distortion_max: float = 0.05
+    crosstalk_margin: float = 0.02
+    efl_mm: float | None = None
+    min_center_thickness: float = 0.3
+    min_edge_thickness: float = 0.3
+    min_air_gap: float = 0.1
+    min_prism_thickness: float = 1.0
+    tir_margin_deg: float = 1.0
+
+    def resolve(self, ini) -> "OptimizeTargets":
+        """A copy with ``gd_max_deg`` / ``pa_max`` taken from an :class:`IniSpec` where unset."""
+        if ini is None:
+            return self
+        return replace(
+            self,
+            gd_max_deg=ini.gd_target_deg if self.gd_max_deg is None else self.gd_max_deg,
+            pa_max=ini.pa_target if self.pa_max is None else self.pa_max,
+        )
+
+
+@dataclass(frozen=True)
+class OptimizeWeights:
+    """Weights of the merit-function terms (each >= 0)."""
+
+    spot: float = 1.0
+    gd: float = 1.0
+    pa: float = 1.0
+    distortion: float = 1.0
+    crosstalk: float = 1.0
+    efl: float = 10.0
+    thickness: float = 1.0
+    tir: float = 1.0
+
+
+TARGET_DEFAULTS = OptimizeTargets()
+WEIGHT_DEFAULTS = OptimizeWeights()
+TARGET_KEYS = set(OptimizeTargets.__dataclass_fields__)
+WEIGHT_KEYS = set(OptimizeWeights.__dataclass_fields__)
+
+
+@dataclass(frozen=True)
+class OptimizeSpec:
+    """Validated ``[optimize]`` section."""
+
+    variables: tuple[Variable, ...] = ()
+    solver: str = "lm"
+    iterations: int = 30
+    stages: tuple[str, ...] = STAGES
+    stride: tuple[int, int] = (4, 2)
+    fields: int = 3
+    pupil: int = 4
+    targets: OptimizeTargets = field(default_factory=OptimizeTargets)
+    weights: OptimizeWeights = field(default_factory=OptimizeWeights)
+
+    @classmethod
+    def default(cls, *, ini: bool = True) -> "OptimizeSpec":
+        """The settings of a design without ``[optimize]``: no variables, default
+        solver, sampling, targets and weights; all stages for an InI design
+        (``ini=True``), only ``"full"`` otherwise."""
+        return cls(stages=STAGES if ini else ("full",))
+
+    @property
+    def variable_names(self) -> tuple[str, ...]:
+        return tuple(v.name for v in self.variables)
+
+
+# ----------------------------------------------------------------- validation
+def fixed_parameter_reason(system: System, name: str, ini=None) -> str | None:
+    """Why parameter ``name`` cannot be an optimization variable, or None if it can.
+
+    ``name`` must be in ``system.parameter_names()``; ``ini`` is the design's
+    :class:`IniSpec` (or None).
+    """
+    if name == "object.index" or name.endswith(".index"):
+        return "refractive indices come from materials and cannot be varied; change the material instead"
+    owner, attr = name.rsplit(".", 1)
+    surf = {s.name: (i, s) for i, s in enumerate(system.surfaces)}
+    if owner not in surf or (attr.startswith(("pitch_", "center_")) and owner in system.arrays):
+        return None
+    i, s = surf[owner]
+    shape = attr in ("curvature", "conic") or _COEFF_RE.match(attr) is not None
+    if shape and s.interaction == "paraxial":
+        return "a paraxial (ideal) lens is a plane: vary its power instead"
+    if shape and s.interaction == "break":
+        return "a coordinate break has no shape; vary its decenter, tilt or thickness"
+    if ini is not None:
+        if attr == "power" and ini.tunable == i:
+            return f"{owner} is the tunable lens: vary \"{TUNABLE}\" (its power at every CDP state)"
+        if i in ini.mla_surfaces and attr.startswith(("decenter_", "tilt_")):
+            return (f"the InI lenslet surfaces stay untilted and undecentered; "
+                    f"move the array with {ini.mla}.center_x / {ini.mla}.center_y")
+        if i == ini.viewing_window and shape:
+            return "the viewing window must stay a plane"
+    return None
+
+
+def _bound(ctx, tab, key, path):
+    if key not in tab:
+        return None
+    v = tab[key]
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v):
+        raise ctx.err(f"{path}.{key}", v, "expected a number (leave it out for no bound)")
+    return float(v)
+
+
+def _variable(ctx, raw, i: int, names: set[str], system: System, ini) -> Variable:
+    path = f"optimize.variables[{i}]"
+    if isinstance(raw, str):
+        name, name_key, tab = raw, path, {}
+    elif isinstance(raw, dict):
+        ctx.no_unknown(raw, {"name", "min", "max"}, path)
+        name, name_key, tab = raw.get("name", MISSING), f"{path}.name", raw
+        if not isinstance(name, str):
+            raise ctx.err(name_key, name, "required: a parameter name (string)")
+    else:
+        raise ctx.err(path, raw, 'a parameter name or a table { name = "...", min = ..., max = ... }')
+
+    if name == TUNABLE:
+        if ini is None or ini.tunable is None:
+            raise ctx.err(name_key, name, "needs a tunable lens ([ini.tunable])")
+    elif name not in names:
+        close = difflib.get_close_matches(name, sorted(names | {TUNABLE}), n=4, cutoff=0.6)
+        hint = f"close matches: {', '.join(close)}" if close else "see design.parameter_names()"
+        raise ctx.err(name_key, name, f"not a parameter of this design; {hint}")
+    else:
+        reason = fixed_parameter_reason(system, name, ini)
+        if reason:
+            raise ctx.err(name_key, name, reason)
+
+    lo, hi = _bound(ctx, tab, "min", path), _bound(ctx, tab, "max", path)
+    if lo is not None and hi is not None and not lo < hi:
+        raise ctx.err(f"{path}.max", hi, f"must be > min (= {lo:g})")
+    if name == TUNABLE and ini.tunable_range_diopters is not None:
+        r_lo, r_hi = ini.tunable_range_diopters
+        if lo is not None and lo < r_lo:
+            raise ctx.err(f"{path}.min", lo, f"outside the tunable lens's range [{r_lo:g}, {r_hi:g}] D")
+        if hi is not None and hi > r_hi:
+            raise ctx.err(f"{path}.max", hi, f"outside the tunable lens's range [{r_lo:g}, {r_hi:g}] D")
+        lo = r_lo if lo is None else lo
+        hi = r_hi if hi is None else hi
+        if not lo < hi:
+            raise ctx.err(f"{path}.max" if "max" in tab else f"{path}.min", hi if "max" in tab else lo,
+                          f"leaves no room inside the tunable lens's range [{r_lo:g}, {r_hi:g}] D")
+    return Variable(name, -math.inf if lo is None else lo, math.inf if hi is None else hi)
+
+
+def _sampling(ctx, tab) -> dict:
+    ctx.no_unknown(tab, SAMPLING_KEYS, "optimize.sampling")
+    out = {}
+    if "stride" in tab:
+        st = tab["stride"]
+        if not isinstance(st, list) or len(st) != 2 or any(
+                isinstance(v, bool) or not isinstance(v, int) or v < 1 for v in st):
+            raise ctx.err("optimize.sampling.stride", st, "expected [sx, sy], two integers >= 1")
+        out["stride"] = (st[0], st[1])
+    if "fields" in tab:
+        out["fields"] = ctx.integer(tab, "fields", "optimize.sampling", 1)
+        if out["fields"] % 2 == 0:
+            raise ctx.err("optimize.sampling.fields", out["fields"], "must be odd (the EI centre is a field)")
+    if "pupil" in tab:
+        out["pupil"] = ctx.integer(tab, "pupil", "optimize.sampling", 2)
+    return out
+
+
+def _targets(ctx, tab) -> OptimizeTargets:
+    ctx.no_unknown(tab, TARGET_KEYS, "optimize.targets")
+    p = "optimize.targets"
+    kw = {}
+    for key in ("gd_max_deg", "pa_max", "local_distortion_max"):
+        if key in tab:
+            kw[key] = ctx.number(tab, key, p, positive=True)
+    if "crosstalk_margin" in tab:
+        v = ctx.number(tab, "crosstalk_margin", p, nonneg=True)
+        if not v < 0.5:
+            raise ctx.err(f"{p}.crosstalk_margin", v, "a fraction of the lenslet pitch in [0, 0.5)")
+        kw["crosstalk_margin"] = v
+    if "efl_mm" in tab:
+        v = tab["efl_mm"]
+        if isinstance(v, float) and math.isnan(v):
+            kw["efl_mm"] = None
+        else:
+            v = ctx.number(tab, "efl_mm", p)
+            if v == 0:
+                raise ctx.err(f"{p}.efl_mm", v, "a nonzero focal length in mm (nan or absent: keep the start's)")
+            kw["efl_mm"] = v
+    for key in ("min_center_thickness", "min_edge_thickness", "min_air_gap", "min_prism_thickness"):
+        if key in tab:
+            kw[key] = ctx.number(tab, key, p, nonneg=True)
+    if "tir_margin_deg" in tab:
+        v = ctx.number(tab, "tir_margin_deg", p, nonneg=True)
+        if not v < 90:
+            raise ctx.err(f"{p}.tir_margin_deg", v, "an angle in degrees in [0, 90)")
+        kw["tir_margin_deg"] = v
+    return OptimizeTargets(**kw)
+
+
+def _weights(ctx, tab) -> OptimizeWeights:
+    ctx.no_unknown(tab, WEIGHT_KEYS, "optimize.weights")
+    return OptimizeWeights(**{k: ctx.number(tab, k, "optimize.weights", nonneg=True) for k in tab})
+
+
+def _stages(ctx, raw, ini) -> tuple[str, ...]:
+    key = "optimize.stages"
+    if not isinstance(raw, list) or not raw or any(not isinstance(s, str) for s in raw):
+        raise ctx.err(key, raw, f"a non-empty list of stage names from: {', '.join(STAGES)}")
+    for j, s in enumerate(raw):
+        if s not in STAGES:
+            close = difflib.get_close_matches(s, STAGES, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise ctx.err(f"{key}[{j}]", s, f"allowed: {', '.join(STAGES)}{hint}")
+        if s in raw[:j]:
+            raise ctx.err(f"{key}[{j}]", s, "duplicate stage")
+        if ini is None and s != "full":
+            raise ctx.err(f"{key}[{j}]", s, 'needs an InI design ([ini]); a plain lens has only "full"')
+    if [STAGES.index(s) for s in raw] != sorted(STAGES.index(s) for s in raw):
+        raise ctx.err(key, raw, f"stages run in this order: {', '.join(STAGES)}")
+    return tuple(raw)
+
+
+def parse_optimize(ctx, data: dict, system: System, ini=None) -> OptimizeSpec | None:
+    """Validate ``data['optimize']`` against ``system`` and its ``[ini]`` spec; None when absent."""
+    if "optimize" not in data:
+        return None
+    tab = data["optimize"]
+    if not isinstance(tab, dict):
+        raise ctx.err("optimize", tab, "expected a table ([optimize])")
+    ctx.no_unknown(tab, OPTIMIZE_KEYS, "optimize")
+    kw: dict = {}
+
+    raw_vars = tab.get("variables", [])
+    if not isinstance(raw_vars, list):
+        raise ctx.err("optimize.variables", raw_vars, "a list of parameter names or { name, min, max } tables")
+    names = set(system.parameter_names())
+    seen: dict[str, int] = {}
+    variables = []
+    for i, raw in enumerate(raw_vars):
+        v = _variable(ctx, raw, i, names, system, ini)
+        if v.name in seen:
+            key = f"optimize.variables[{i}]" + (".name" if isinstance(raw, dict) else "")
+            raise ctx.err(key, v.name, f"duplicate variable (also optimize.variables[{seen[v.name]}])")
+        seen[v.name] = i
+        variables.append(v)
+    kw["variables"] = tuple(variables)
+
+    solver = tab.get("solver", "lm")
+    if solver not in SOLVERS:
+        raise ctx.err("optimize.solver", solver, f"allowed: {', '.join(SOLVERS)}")
+    kw["solver"] = solver
+    if "iterations" in tab:
+        kw["iterations"] = ctx.integer(tab, "iterations", "optimize", 1)
+    kw["stages"] = _stages(ctx, tab["stages"], ini) if "stages" in tab else (
+        STAGES if ini is not None else ("full",))
+    kw.update(_sampling(ctx, ctx.table(tab, "sampling", "optimize", {})))
+    kw["targets"] = _targets(ctx, ctx.table(tab, "targets", "optimize", {})).resolve(ini)
+    kw["weights"] = _weights(ctx, ctx.table(tab, "weights", "optimize", {}))
+    return OptimizeSpec(**kw)
