@@ -255,6 +255,54 @@ def cmd_analyze(args) -> int:
     return 0
 
 
+def cmd_optimize(args) -> int:
+    from pathlib import Path
+
+    from .analysis.ini_analysis import analyze
+    from .fileio import write_json
+    from .optimize.workflow import compare, optimize
+
+    design = load(args.design)
+    if design.ini is None:
+        raise InputError(f"{args.design}: ini = missing: lfsim optimize needs an [ini] section")
+    if design.optimize is None or not design.optimize.variables:
+        raise InputError(f"{args.design}: optimize.variables = missing: mark the variables in an [optimize] section")
+    stages = None
+    if args.stages:
+        from .design.optimize_section import STAGES
+
+        stages = [s.strip() for s in args.stages.split(",") if s.strip()]
+        bad = [s for s in stages if s not in STAGES]
+        if bad or not stages:
+            raise InputError(f"--stages = {args.stages!r}: expected a comma-separated subset of {', '.join(STAGES)}")
+    if args.iterations is not None and args.iterations < 1:
+        raise InputError(f"--iterations = {args.iterations}: must be >= 1")
+    quiet = args.json or not sys.stderr.isatty()
+    log = (lambda *a, **k: None) if args.json else (lambda msg: print(msg, file=sys.stderr))
+    doc = optimize(design, args.out, stages=stages, iterations=args.iterations, solver=args.solver,
+                   resume=args.resume, progress=not quiet, log=log)
+    out = Path(args.out)
+    if not args.no_analyze:
+        stride = _int_pair(args.analyze_stride, "--analyze-stride")
+        before = analyze(design, out / "before", stride=stride, plots=True)
+        after = analyze(load(out / doc["optimized_design"]), out / "after", stride=stride, plots=True)
+        doc["before_after"] = compare(before, after, out / "before_after.png")
+        doc["before_after_stride"] = list(stride)
+        doc["plots"].append("before_after.png")
+        write_json(out / "history.json", doc)
+    if args.json:
+        print(_dump(doc))
+        return 0
+    for r in doc["stages"]:
+        print(f"{r['stage']:15s} {len(r['variables']):3d} variables  merit {r['merit_start']:.6g} -> "
+              f"{r['merit_end']:.6g}  ({r['iterations']} iterations, {r['status']}, {r['seconds']:.1f} s)")
+    for k, v in doc.get("before_after", {}).items():
+        if v["before"] is not None and v["after"] is not None:
+            print(f"  {k:24s} {v['before']:10.4f} -> {v['after']:10.4f}")
+    print(f"wrote {out / doc['optimized_design']}, history.json, " + ", ".join(doc["plots"]))
+    return 0
+
+
 DEFAULT_CONTENT = "scenes/fig9_wall.toml"
 
 
@@ -375,6 +423,18 @@ def build_parser() -> argparse.ArgumentParser:
     lay.add_argument("--out", required=True, help="output directory")
     lay.add_argument("--json", action="store_true")
     lay.set_defaults(func=cmd_layout)
+
+    op = sub.add_parser("optimize", help="optimize a design's [optimize] variables against the light-field merit")
+    op.add_argument("design")
+    op.add_argument("--out", required=True, help="output directory (optimized design, history, plots, checkpoints)")
+    op.add_argument("--stages", help="comma-separated stages (default: the design's [optimize] stages)")
+    op.add_argument("--iterations", type=int, help="iterations per stage (default: the design's)")
+    op.add_argument("--solver", choices=("lm", "adam"), help="default: the design's")
+    op.add_argument("--resume", action="store_true", help="continue from the checkpoints in --out")
+    op.add_argument("--no-analyze", action="store_true", help="skip the before/after `analyze` runs")
+    op.add_argument("--analyze-stride", default="1,1", help="lenslet stride of the before/after analysis (1,1)")
+    op.add_argument("--json", action="store_true")
+    op.set_defaults(func=cmd_optimize)
 
     fs = sub.add_parser("focal-stack", help="retinal images of the display focused at several depths, "
                         "with the natural view, similarity and focus cues")

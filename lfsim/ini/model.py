@@ -176,21 +176,58 @@ class IniModel:
         J = np.stack([np.asarray(dr.grad(v), dtype=np.float64).reshape(nb, 4) for v in outs], axis=1)
         return vals, J
 
-    def _lenslet_maps(self):
-        """Display state → stop hit (S0, JS) and → state behind the MLA (L0, JL), reference lenslet."""
+    def _lenslet_maps(self, blocks=None):
+        """Display state → stop hit (S0, JS) and → state behind the MLA (L0, JL), reference
+        lenslet; for the design (stored) or for parameter ``blocks`` (B, n) (returned)."""
         spec = self.spec
         base = np.array([self.c_ref[0], self.c_ref[1], 0.0, 0.0])
-        blocks = self.values0[None, :]
+        store = blocks is None
+        blocks = self.values0[None, :] if store else np.asarray(blocks)
         frames = self.tracer.frames_numpy()
         R_s, o_s = frames[spec.stop]
         o_s = o_s + np.array([self.c_ref[0], self.c_ref[1], 0.0])
         S0, JS = self._linearize(blocks, base, -self.g, 0, spec.stop, (R_s, o_s), True,
                                  (self.m_ref, self.n_ref))
-        self.S0, self.JS = S0[0, :2], JS[0, :2]
         back = (np.eye(3), np.array([0.0, 0.0, self.z_mla_back]))
         L0, JL = self._linearize(blocks, base, -self.g, 0, spec.mla_surfaces[-1], back, False,
                                  (self.m_ref, self.n_ref))
-        self.L0, self.JL = L0[0] - np.array([self.c_ref[0], self.c_ref[1], 0, 0]), JL[0]
+        L0 = L0 - np.array([self.c_ref[0], self.c_ref[1], 0, 0])
+        if not store:
+            return S0[:, :2], JS[:, :2], L0, JL
+        self.S0, self.JS = S0[0, :2], JS[0, :2]
+        self.L0, self.JL = L0[0], JL[0]
+
+    def linear_views(self, values) -> list["IniModel"]:
+        """First-order views of the design at other parameter values, in two launches.
+
+        ``values``: (V, n_states, n_params) parameter vectors per CDP state (the
+        tunable lens's power in each). Each view is a shallow copy of this
+        model whose paraxial maps (S0, JS, L0, JL, G0, JG) are re-linearized at
+        those values, so :meth:`aim`, :meth:`paraxial_vw`, :meth:`ei_centers`
+        and :meth:`state` answer for the changed design (for finite
+        differences of first-order quantities). Frames of the stop and the
+        viewing window are this model's.
+        """
+        import copy
+
+        values = np.asarray(values, dtype=np.float64)
+        V, nd = values.shape[:2]
+        S0, JS, L0, JL = self._lenslet_maps(values[:, 0])
+        G0, JG = self._group_maps(values.reshape(V * nd, -1))
+        G0, JG = G0.reshape(V, nd, 4), JG.reshape(V, nd, 4, 4)
+        ip = None
+        if self.spec.tunable is not None:
+            ip = self.tracer.index[f"{self.system.surfaces[self.spec.tunable].name}.power"]
+        views = []
+        for v in range(V):
+            w = copy.copy(self)
+            w.values0 = values[v, 0].copy()
+            if ip is not None:
+                w.tl_power = [float(values[v, k, ip]) for k in range(nd)]
+            w.S0, w.JS, w.L0, w.JL = S0[v], JS[v], L0[v], JL[v]
+            w.G0, w.JG = G0[v], JG[v]
+            views.append(w)
+        return views
 
     def _group_maps(self, blocks):
         """State behind the MLA → viewing-window state, about the system axis, per block."""

@@ -255,7 +255,8 @@ class RayJacobian:
     cosine of incidence there. Derivatives ``d_pos`` (N, 2, K), ``d_dir``
     (N, 3, K), ``d_surf`` (N, S, 2, K), ``d_cos_in`` (N, S, K) are total
     derivatives: the launch slope is re-aimed (implicit function theorem on
-    the stop hit), so every ray keeps its pupil point.
+    the stop hit), so every ray keeps its pupil point. ``ds_*``: the same
+    w.r.t. the ray's display point (for a display layout that moves).
     """
 
     pos: np.ndarray
@@ -267,6 +268,10 @@ class RayJacobian:
     d_dir: np.ndarray
     d_surf: np.ndarray
     d_cos_in: np.ndarray
+    ds_pos: np.ndarray  # (N, 2, 2): total derivatives w.r.t. the display point (x, y)
+    ds_dir: np.ndarray  # (N, 3, 2)
+    ds_surf: np.ndarray  # (N, S, 2, 2)
+    ds_cos_in: np.ndarray  # (N, S, 2)
 
 
 def trace_rays_jacobian(model: IniModel, s, m, n, rho, k, columns, record=(), iterations: int = 30,
@@ -277,7 +282,8 @@ def trace_rays_jacobian(model: IniModel, s, m, n, rho, k, columns, record=(), it
     moves that parameter in every state (None) or in one state only (e.g. the
     tunable lens's power). The rays are replicated K + 2 times: copy j moves
     column j, the last two copies move the launch slope (x, y); a single AD
-    seed then yields every column in one forward pass, and the aim correction
+    seed then yields every column in one forward pass (two more copies move
+    the display point), and the aim correction
     ``dt/dp = −(∂stop/∂t)⁻¹ ∂stop/∂p`` turns partial into total derivatives.
     ``record``: surface indices whose hits (relative to the lenslet axis) and
     incidence cosines are returned too.
@@ -287,7 +293,7 @@ def trace_rays_jacobian(model: IniModel, s, m, n, rho, k, columns, record=(), it
     s_r, m_r, n_r, k_r, t, _ = _aim(model, s, m, n, rho, k, iterations)
     N, nb, npar = len(s_r), len(model.depths), tr.n_params
     K = len(columns) if derivatives else 0
-    C = K + 2 if derivatives else 1
+    C = K + 4 if derivatives else 1
     base = np.concatenate([model.values(i) for i in range(nb)])
     mask = np.zeros((C, nb, npar))
     for c, (name, state) in enumerate(columns[:K]):
@@ -315,7 +321,9 @@ def trace_rays_jacobian(model: IniModel, s, m, n, rho, k, columns, record=(), it
     tx = g(t[:, 0], T.Float) + seed_r * dr.select(copy == K, 1.0, 0.0)
     ty = g(t[:, 1], T.Float) + seed_r * dr.select(copy == K + 1, 1.0, 0.0)
     one = dr.full(T.Float, 1.0, C * N)
-    o = T.Array3(g(s_r[:, 0], T.Float), g(s_r[:, 1], T.Float), dr.full(T.Float, -model.g, C * N))
+    sx = g(s_r[:, 0], T.Float) + seed_r * dr.select(copy == K + 2, 1.0, 0.0)
+    sy = g(s_r[:, 1], T.Float) + seed_r * dr.select(copy == K + 3, 1.0, 0.0)
+    o = T.Array3(sx, sy, dr.full(T.Float, -model.g, C * N))
     from ..optics.tracer import RayState
 
     out = tr.trace(P, RayState(o, T.Array3(tx, ty, one)), block=block,
@@ -349,17 +357,24 @@ def trace_rays_jacobian(model: IniModel, s, m, n, rho, k, columns, record=(), it
     if not derivatives:
         z = np.zeros
         return RayJacobian(**res, d_pos=z((N, 2, 0)), d_dir=z((N, 3, 0)), d_surf=z((N, nS, 2, 0)),
-                           d_cos_in=z((N, nS, 0)))
+                           d_cos_in=z((N, nS, 0)), ds_pos=z((N, 2, 2)), ds_dir=z((N, 3, 2)),
+                           ds_surf=z((N, nS, 2, 2)), ds_cos_in=z((N, nS, 2)))
     G = np.stack([np.asarray(dr.grad(v), dtype=np.float64).reshape(C, N) for v in outs], axis=1)  # (C, O, N)
     G = np.moveaxis(G, 2, 0)  # (N, C, O)
-    dp, dt = G[:, :K, :], G[:, K:, :]  # (N, K, O), (N, 2, O)
+    dt = G[:, K:K + 2, :]  # (N, 2, O)
     A = np.moveaxis(dt[:, :, 0:2], 1, 2)  # ∂stop/∂t (N, 2, 2): rows stop x/y, cols t x/y
     ok = (status == 0) & (np.abs(np.linalg.det(A)) > 0)
     A = np.where(ok[:, None, None], A, np.eye(2))
-    dtdp = -np.linalg.solve(A, np.moveaxis(dp[:, :, 0:2], 1, 2))  # (N, 2, K)
-    tot = np.moveaxis(dp, 1, 2) + np.einsum("nto,ntk->nok", dt, dtdp)  # (N, O, K)
-    tot = np.where(np.isfinite(tot), tot, 0.0)
-    tot[status != 0] = 0.0
-    d_surf = tot[:, 7:, :].reshape(N, nS, 3, K) if nS else np.zeros((N, 0, 3, K))
-    return RayJacobian(**res, d_pos=tot[:, 2:4], d_dir=tot[:, 4:7], d_surf=d_surf[:, :, :2],
-                       d_cos_in=d_surf[:, :, 2])
+
+    def total(dq):  # partials (N, Q, O) → total derivatives (N, O, Q) with the ray re-aimed
+        dtdq = -np.linalg.solve(A, np.moveaxis(dq[:, :, 0:2], 1, 2))  # (N, 2, Q)
+        tot = np.moveaxis(dq, 1, 2) + np.einsum("nto,ntq->noq", dt, dtdq)
+        tot = np.where(np.isfinite(tot), tot, 0.0)
+        tot[status != 0] = 0.0
+        return tot
+
+    tp, ts = total(G[:, :K, :]), total(G[:, K + 2:K + 4, :])
+    sp_ = tp[:, 7:, :].reshape(N, nS, 3, K) if nS else np.zeros((N, 0, 3, K))
+    ss_ = ts[:, 7:, :].reshape(N, nS, 3, 2) if nS else np.zeros((N, 0, 3, 2))
+    return RayJacobian(**res, d_pos=tp[:, 2:4], d_dir=tp[:, 4:7], d_surf=sp_[:, :, :2], d_cos_in=sp_[:, :, 2],
+                       ds_pos=ts[:, 2:4], ds_dir=ts[:, 4:7], ds_surf=ss_[:, :, :2], ds_cos_in=ss_[:, :, 2])

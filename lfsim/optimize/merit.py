@@ -1,0 +1,424 @@
+"""The light-field merit of an InI-HMD design (Section 4) as weighted residuals.
+
+The design variables ``x`` (names from the design's parameter table, plus
+the tunable lens's power per CDP state) are written into the design file's
+table, the design is re-validated and its InI model rebuilt, and one fused
+trace carries every sampled sub-system (lenslet × CDP depth) × field × pupil
+ray (:func:`lfsim.ini.subsystems.trace_rays_jacobian`). The merit is the sum
+of squares of the residuals below; each block is scaled so that a residual of
+1 is "one unit of trouble":
+
+============  ==============================================================
+block         residuals
+============  ==============================================================
+spot          √w_j · (r_j − r̄) per Gauss–Legendre pupil ray, arcmin, over
+              √(sub-systems × fields): the weighted mean square RMS spot
+              (retinal tangents r = t − h·D/1000 about the CDP, as `analyze`)
+gd            Eq. (11) chief-ray error |r − r_par| in degrees (mean part),
+              plus 10 × its excess over the GD target per sub-system
+pa            Eq. (12) marginal-ray footprint errors |v − v′|/(√2 d_v) (mean
+              part), plus 10 × the excess over the PA target per ray
+distortion    local distortion of each elemental image beyond its target
+crosstalk     marginal and pupil rays beyond (½ − margin) of the pitch on
+              every MLA surface, µm
+efl           relay–eyepiece focal length per CDP state, % from its target
+thickness     centre thickness of glass / air gaps below their minimum, µm
+tir           incidence below the critical angle + margin on TIR surfaces, °
+lost          a ray lost to a failed refraction or intersection: a constant
+              (steps that lose rays raise the merit and are rejected)
+============  ==============================================================
+
+Derivatives: the ray blocks are exact forward-mode Dr.Jit derivatives with
+the re-aiming of every ray included; the paraxial references of GD and PA
+and the EFL use the current design's first-order model, whose own change is
+differentiated by central differences of the first-order maps (EFL) or
+neglected within one Jacobian (GD/PA paraxial rays, the display layout):
+the residuals themselves are always exact, so a damped least-squares step
+is accepted only when the true merit falls.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..design.design import Design
+from ..ini.model import IniModel
+from ..ini.subsystems import field_grid, sample, trace_rays_jacobian
+from ..metrics import pupil
+from ..metrics.spot import ARCMIN
+
+LOST = 10.0  # residual of a lost ray (arcmin-equivalent)
+DEG = 180.0 / math.pi
+
+
+@dataclass
+class Column:
+    """One optimization variable: a parameter-table entry, or the tunable
+    lens's power in one CDP state (``state`` set; value in diopters)."""
+
+    name: str
+    state: int | None
+    lower: float
+    upper: float
+
+    @property
+    def label(self) -> str:
+        return self.name if self.state is None else f"tunable[{self.state}]"
+
+
+def columns(design: Design, spec) -> list[Column]:
+    """Expand the ``[optimize]`` variables into columns ("tunable" → one per state)."""
+    out = []
+    ini = design.ini
+    for v in spec.variables:
+        if v.name == "tunable":
+            tl = design.system.surfaces[ini.tunable].name
+            for k in range(len(ini.cdp_diopters)):
+                out.append(Column(f"{tl}.power", k, v.lower, v.upper))
+        else:
+            out.append(Column(v.name, None, v.lower, v.upper))
+    return out
+
+
+class IniMerit:
+    """Residuals and Jacobian of the light-field merit (a solver ``Problem``).
+
+    Parameters
+    ----------
+    design : Design
+        The starting design (with ``[ini]``; its ``[optimize]`` section or
+        ``spec`` gives variables, targets and weights).
+    spec : OptimizeSpec
+    cols : list of Column
+        The active variables (default: all of ``spec``).
+    stride : (int, int), optional
+        Lenslet sampling (default: ``spec.stride``; (1, 1) = all lenslets).
+    """
+
+    def __init__(self, design: Design, spec, cols: list[Column] | None = None, stride=None,
+                 fields: int | None = None, pupil_nodes: int | None = None):
+        if design.ini is None:
+            raise ValueError(f"{design.path}: the design has no [ini] section")
+        self.design0 = design
+        self.spec = spec
+        self.cols = list(cols) if cols is not None else columns(design, spec)
+        self.stride = tuple(stride or spec.stride)
+        self.fields = int(fields or spec.fields)
+        self.nodes = int(pupil_nodes or spec.pupil)
+        model0 = IniModel(design)
+        self.model0 = model0
+        names = model0.tracer.names
+        self.x0 = np.array([1000.0 * model0.tl_power[c.state] if c.state is not None
+                            else model0.values0[names.index(c.name)] for c in self.cols])
+        t = spec.targets
+        self.efl0 = self._references(model0)[1]["efl"]
+        self.efl_target = (np.full_like(self.efl0, t.efl_mm) if t.efl_mm is not None and math.isfinite(t.efl_mm)
+                           else self.efl0.copy())
+        gl, wgl = pupil.gauss_legendre_square(self.nodes)
+        self.rho = np.concatenate([np.zeros((1, 2)), pupil.MARGINAL, gl])
+        self.w_gl = wgl
+        self.sl_marg = slice(1, 5)
+        self.sl_gl = slice(5, 5 + len(gl))
+        self.evaluations = 0
+        self._cache = None
+
+    # ------------------------------------------------------------ designs
+    @property
+    def bounds(self):
+        return (np.array([c.lower for c in self.cols]), np.array([c.upper for c in self.cols]))
+
+    def design_at(self, x) -> Design:
+        """The design with the variables set to ``x`` (validated like a file)."""
+        from ..design.writer import apply_values
+
+        x = np.asarray(x, dtype=np.float64)
+        values = {c.name: float(v) for c, v in zip(self.cols, x) if c.state is None}
+        powers = None
+        if any(c.state is not None for c in self.cols):
+            model0 = self.model0
+            powers = [1000.0 * p for p in model0.tl_power]
+            for c, v in zip(self.cols, x):
+                if c.state is not None:
+                    powers[c.state] = float(v)
+        raw = apply_values(self.design0.raw, values, tunable_power_diopters=powers)
+        d = Design.from_dict(raw, self.design0.path or "<dict>")
+        return d
+
+    def model_at(self, x) -> IniModel:
+        return IniModel(self.design_at(x))
+
+    # ------------------------------------------------------------ pieces
+    def _subs(self, model: IniModel):
+        return sample(model, stride=self.stride, symmetry="none",
+                      fields=field_grid(self.fields, model.spec.field_fraction))
+
+    def _references(self, model: IniModel):
+        """First-order references of the sampled sub-systems: display points (S, F, 2),
+        paraxial retinal tangents of the chief rays (S, F, 2), paraxial VW positions
+        of the marginal rays (S, F, 4, 2), footprint widths d_v (S,), EFL per state."""
+        subs = self._subs(model)
+        S, F = subs.display.shape[:2]
+        par_c = np.empty((S, F, 2))
+        par_m = np.empty((S, F, 4, 2))
+        d_v = np.empty(S)
+        for kk in np.unique(subs.k):
+            sel = subs.k == kk
+            sd = subs.display[sel]
+            c = np.broadcast_to(subs.center[sel][:, None, :], sd.shape)
+            pc = model.paraxial_vw(int(kk), sd, c, np.zeros_like(sd))
+            par_c[sel] = pc[..., 2:4] - pc[..., 0:2] * (model.depths[int(kk)] / 1000.0)
+            sm = np.broadcast_to(sd[:, :, None, :], sd.shape[:2] + (4, 2))
+            cm = np.broadcast_to(subs.center[sel][:, None, None, :], sm.shape)
+            par_m[sel] = model.paraxial_vw(int(kk), sm, cm, np.broadcast_to(pupil.MARGINAL, sm.shape))[..., 0:2]
+            d_v[sel] = np.mean(model.state(int(kk)).d_v)
+        with np.errstate(divide="ignore"):
+            efl = -0.5 * (1.0 / model.JG[:, 2, 0] + 1.0 / model.JG[:, 3, 1])
+        return subs, dict(display=subs.display, par_c=par_c, par_m=par_m, d_v=d_v, efl=efl)
+
+    def _reference_derivatives(self, model: IniModel, x):
+        """Central differences (K columns) of :meth:`_references` from first-order views."""
+        nd = len(model.depths)
+        names = model.tracer.names
+        base = np.array([model.values(k) for k in range(nd)])
+        steps = np.array([1e-6 * max(1.0, abs(v)) for v in np.asarray(x, dtype=np.float64)])
+        vals = []
+        for c, h in zip(self.cols, steps):
+            for sgn in (1.0, -1.0):
+                b = base.copy()
+                if c.state is None:
+                    b[:, names.index(c.name)] += sgn * h
+                else:
+                    b[c.state, names.index(c.name)] += sgn * h / 1000.0
+                vals.append(b)
+        if not vals:
+            return {}
+        views = model.linear_views(np.array(vals))
+        refs = [self._references(v)[1] for v in views]
+        out = {}
+        for key in refs[0]:
+            plus = np.stack([refs[2 * j][key] for j in range(len(self.cols))], axis=-1)
+            minus = np.stack([refs[2 * j + 1][key] for j in range(len(self.cols))], axis=-1)
+            out[key] = (plus - minus) / (2.0 * steps)
+        return out
+
+    def _rays(self, model: IniModel, subs, derivatives: bool):
+        S, F, R = len(subs), subs.display.shape[1], len(self.rho)
+        shape = (S, F, R)
+        s = np.broadcast_to(subs.display[:, :, None, :], shape + (2,)).reshape(-1, 2)
+        rho = np.broadcast_to(self.rho[None, None], shape + (2,)).reshape(-1, 2)
+        m = np.broadcast_to(subs.m[:, None, None], shape).ravel()
+        n = np.broadcast_to(subs.n[:, None, None], shape).ravel()
+        k = np.broadcast_to(subs.k[:, None, None], shape).ravel()
+        record = self._crosstalk_surfaces(model) + self._tir_surfaces(model)
+        cols = [(c.name, c.state) for c in self.cols]
+        J = trace_rays_jacobian(model, s, m, n, rho, k, cols, record=record, derivatives=derivatives)
+        if derivatives:  # tunable-lens columns: the tracer's power is in 1/mm, the variable in diopters
+            conv = np.array([1e-3 if c.state is not None else 1.0 for c in self.cols])
+            J.d_pos, J.d_dir, J.d_surf, J.d_cos_in = (J.d_pos * conv, J.d_dir * conv, J.d_surf * conv,
+                                                      J.d_cos_in * conv)
+        return shape, J
+
+    @staticmethod
+    def _crosstalk_surfaces(model: IniModel) -> list[int]:
+        """MLA surfaces other than the stop (on the stop the pupil edge is the cell edge)."""
+        return [i for i in model.spec.mla_surfaces if i != model.spec.stop]
+
+    @staticmethod
+    def _tir_surfaces(model: IniModel) -> list[int]:
+        last = model.spec.viewing_window
+        return [i for i, s in enumerate(model.system.surfaces[:last + 1]) if s.interaction == "tir"]
+
+    # ------------------------------------------------------------ residuals
+    def evaluate(self, x, derivatives: bool = True):
+        """(residuals (M,), Jacobian (M, K) or None, details dict)."""
+        self.evaluations += 1
+        model = self.model_at(x)
+        sp, t, w = model.spec, self.spec.targets, self.spec.weights
+        K = len(self.cols)
+        subs, ref = self._references(model)
+        (S, F, R), J = self._rays(model, subs, derivatives)
+        dref = self._reference_derivatives(model, x) if derivatives and K else {}
+        ok = (J.status == 0).reshape(S, F, R)
+        D = np.array(model.depths)[subs.k][:, None, None]
+        pos = J.pos.reshape(S, F, R, 2)
+        dirs = J.dir.reshape(S, F, R, 3)
+        slope = dirs[..., :2] / dirs[..., 2:3]
+        r = slope - pos * (D[..., None] / 1000.0)
+        if derivatives:
+            # rays move with the display layout too: d/dx += ∂/∂s · ds/dx
+            ds = dref["display"][:, :, None] if dref else np.zeros((S, F, 1, 2, K))  # (S, F, 1, 2, K)
+            dpos = J.d_pos.reshape(S, F, R, 2, K) + np.einsum("sfrab,sfrbk->sfrak",
+                                                              J.ds_pos.reshape(S, F, R, 2, 2), ds)
+            ddir = J.d_dir.reshape(S, F, R, 3, K) + np.einsum("sfrab,sfrbk->sfrak",
+                                                              J.ds_dir.reshape(S, F, R, 3, 2), ds)
+            nrec = J.surf.shape[1]
+            dsurf = J.d_surf.reshape(S, F, R, nrec, 2, K) + np.einsum(
+                "sfrjab,sfrbk->sfrjak", J.ds_surf.reshape(S, F, R, nrec, 2, 2), ds)
+            dcos = J.d_cos_in.reshape(S, F, R, nrec, K) + np.einsum(
+                "sfrjb,sfrbk->sfrjk", J.ds_cos_in.reshape(S, F, R, nrec, 2), ds)
+            dslope = (ddir[..., :2, :] - slope[..., None] * ddir[..., 2:3, :]) / dirs[..., 2:3, None]
+            dr_ = dslope - dpos * (D[..., None, None] / 1000.0)
+            zK = np.zeros((S, F, 2, K))
+            dpar_c = dref.get("par_c", zK)
+            dpar_m = dref.get("par_m", np.zeros((S, F, 4, 2, K)))
+            dd_v = dref.get("d_v", np.zeros((S, K)))
+        blocks: list[tuple[str, np.ndarray, np.ndarray | None]] = []
+
+        def add(name, res, jac):
+            res = np.where(np.isfinite(res), res, 0.0)
+            blocks.append((name, res.ravel(), None if jac is None else
+                           np.where(np.isfinite(jac), jac, 0.0).reshape(-1, K)))
+
+        # Lost rays: a constant each (no derivative).
+        lost = (~ok).reshape(-1).astype(np.float64) * LOST
+        add("lost", lost, np.zeros((lost.size, K)) if derivatives else None)
+
+        # RMS spot over the Gauss–Legendre pupil, about its weighted centroid.
+        g = self.sl_gl
+        okg = ok[:, :, g]
+        wg = self.w_gl[None, None, :] * okg
+        wsum = np.maximum(wg.sum(-1, keepdims=True), 1e-300)
+        wn = wg / wsum  # (S, F, G)
+        cen = np.sum(wn[..., None] * r[:, :, g], axis=2, keepdims=True)
+        scale = w.spot * ARCMIN / math.sqrt(S * F)
+        res = np.sqrt(wn)[..., None] * (r[:, :, g] - cen) * scale
+        jac = None
+        if derivatives:
+            dcen = np.sum(wn[..., None, None] * dr_[:, :, g], axis=2, keepdims=True)
+            jac = np.sqrt(wn)[..., None, None] * (dr_[:, :, g] - dcen) * scale
+        add("spot", res, jac)
+
+        # GD (Eq. 11) on the centre field's chief ray, against the paraxial chief ray.
+        par_c, par_m = ref["par_c"], ref["par_m"]
+        e = r[:, 0, 0] - par_c[:, 0]  # (S, 2)
+        gd = np.hypot(e[:, 0], e[:, 1]) * DEG
+        okc = ok[:, 0, 0]
+        de = dr_[:, 0, 0] - dpar_c[:, 0] if derivatives else None
+        add("gd", np.where(okc[:, None], e, 0.0) * DEG * w.gd / math.sqrt(S),
+            np.where(okc[:, None, None], de, 0.0) * DEG * w.gd / math.sqrt(S) if derivatives else None)
+        if t.gd_max_deg is not None:
+            over = okc & (gd > t.gd_max_deg)
+            u = np.where(over[:, None], e / np.maximum(np.hypot(e[:, 0], e[:, 1]), 1e-300)[:, None], 0.0)
+            add("gd_max", np.where(over, gd - t.gd_max_deg, 0.0) * 10.0 * w.gd,
+                np.einsum("sa,sak->sk", u, de) * DEG * 10.0 * w.gd if derivatives else None)
+
+        # PA (Eq. 12): marginal rays' footprint errors.
+        d_v = ref["d_v"][:, None, None, None]
+        m_ = self.sl_marg
+        okm = ok[:, :, m_]
+        dev = (pos[:, :, m_] - par_m) / (math.sqrt(2.0) * d_v)  # (S, F, 4, 2)
+        ddev = None
+        if derivatives:
+            ddev = ((dpos[:, :, m_] - dpar_m) / (math.sqrt(2.0) * d_v[..., None])
+                    - dev[..., None] * (dd_v[:, None, None, None, :] / d_v[..., None]))
+        n_m = math.sqrt(S * F * 4)
+        add("pa", np.where(okm[..., None], dev, 0.0) * w.pa / n_m,
+            np.where(okm[..., None, None], ddev, 0.0) * w.pa / n_m if derivatives else None)
+        if t.pa_max is not None:
+            a = np.hypot(dev[..., 0], dev[..., 1])
+            over = okm & (a > t.pa_max)
+            u = np.where(over[..., None], dev / np.maximum(a, 1e-300)[..., None], 0.0)
+            add("pa_max", np.where(over, a - t.pa_max, 0.0) * 10.0 * w.pa,
+                np.einsum("sfma,sfmak->sfmk", u, ddev) * 10.0 * w.pa if derivatives else None)
+
+        # Local distortion of each EI (chief rays of every field against the paraxial ones).
+        if t.local_distortion_max is not None and F > 1:
+            rc, pc_ = r[:, :, 0], par_c
+            vr, vp = rc - rc[:, :1], pc_ - pc_[:, :1]
+            nv = np.maximum(np.hypot(vp[..., 0], vp[..., 1]), 1e-300)
+            dd = vr - vp
+            ld = np.hypot(dd[..., 0], dd[..., 1]) / nv
+            okd = ok[:, :, 0] & ok[:, :1, 0]
+            over = okd & (ld > t.local_distortion_max)
+            over[:, 0] = False
+            u = np.where(over[..., None], dd / np.maximum(np.hypot(dd[..., 0], dd[..., 1]), 1e-300)[..., None], 0.0)
+            jac = None
+            if derivatives:
+                dq = dr_[:, :, 0] - dpar_c
+                dv = dq - dq[:, :1]
+                dvp = dpar_c - dpar_c[:, :1]
+                dnv = np.einsum("sfa,sfak->sfk", vp / nv[..., None], dvp)
+                jac = np.where(over[..., None], (np.einsum("sfa,sfak->sfk", u, dv) - ld[..., None] * dnv)
+                               / nv[..., None], 0.0) * 100.0 * w.distortion
+            add("distortion", np.where(over, ld - t.local_distortion_max, 0.0) * 100.0 * w.distortion, jac)
+
+        # Crosstalk: pupil and marginal rays inside (½ − margin) of the cell on every MLA surface.
+        nmla = len(self._crosstalk_surfaces(model))
+        pitch = np.array(model.arr.pitch)
+        lim = (0.5 - (t.crosstalk_margin or 0.0)) * pitch
+        hs = J.surf[:, :nmla].reshape(S, F, R, nmla, 2)
+        ex = np.abs(hs) - lim
+        over = (ex > 0) & ok[..., None, None]
+        jac = None
+        if derivatives:
+            dh = dsurf[:, :, :, :nmla]
+            jac = np.where(over[..., None], np.sign(hs)[..., None] * dh, 0.0) * 1000.0 * w.crosstalk
+        add("crosstalk", np.where(over, ex, 0.0) * 1000.0 * w.crosstalk, jac)
+
+        # TIR margin on surfaces that rely on total internal reflection.
+        tirs = self._tir_surfaces(model)
+        if tirs and t.tir_margin_deg is not None:
+            vals = model.values(0)
+            names = model.tracer.names
+            for j_, i in enumerate(tirs):
+                n1 = vals[names.index(model.tracer._index_param[i])]
+                n2 = vals[names.index(f"{model.system.surfaces[i].name}.index")]
+                theta_c = math.degrees(math.asin(min(1.0, n2 / n1)))
+                cosv = np.clip(J.cos_in[:, nmla + j_], -1.0, 1.0).reshape(S, F, R)
+                th = np.degrees(np.arccos(cosv))
+                need = theta_c + t.tir_margin_deg
+                over = ok & (th < need)
+                jac = None
+                if derivatives:
+                    dcos_ = dcos[:, :, :, nmla + j_]
+                    sin = np.maximum(np.sqrt(1.0 - cosv ** 2), 1e-12)
+                    jac = np.where(over[..., None], dcos_ / sin[..., None] * DEG, 0.0) * w.tir
+                add(f"tir_{model.system.surfaces[i].name}", np.where(over, need - th, 0.0) * w.tir, jac)
+
+        # Relay–eyepiece focal length per CDP state (central differences of the first-order maps).
+        f = ref["efl"]
+        tgt = self.efl_target[:len(f)]
+        jac = dref["efl"] / tgt[:, None] * 100.0 * w.efl if derivatives and K else None
+        add("efl", (f - tgt) / tgt * 100.0 * w.efl, jac)
+
+        # Centre thickness of variable glass thicknesses and air gaps.
+        res_t, jac_t = [], []
+        for j_, c in enumerate(self.cols):
+            if c.state is not None or not c.name.endswith(".thickness"):
+                continue
+            sname = c.name[: -len(".thickness")]
+            i = [s.name for s in model.system.surfaces].index(sname)
+            glass = model.system.surfaces[i].interaction in ("refract", "tir") and \
+                model.values0[model.tracer.names.index(f"{sname}.index")] > 1.0001
+            lo = t.min_center_thickness if glass else t.min_air_gap
+            if lo is None:
+                continue
+            v = float(x[j_])
+            res_t.append(max(0.0, lo - v) * 1000.0 * w.thickness)
+            row = np.zeros(K)
+            if v < lo:
+                row[j_] = -1000.0 * w.thickness
+            jac_t.append(row)
+        if res_t:
+            add("thickness", np.array(res_t), np.array(jac_t) if derivatives else None)
+
+        self.layout = [(name, res.size) for name, res, _ in blocks]
+        r_all = np.concatenate([b[1] for b in blocks])
+        J_all = np.concatenate([b[2] for b in blocks]) if derivatives else None
+        details = {name: float(np.sum(res ** 2)) for name, res, _ in blocks}
+        details.update(gd_max_deg=float(np.max(gd[okc])) if okc.any() else None,
+                       gd_mean_deg=float(np.mean(gd[okc])) if okc.any() else None,
+                       rays=int(ok.size), rays_lost=int((~ok).sum()),
+                       efl_mm=[float(v) for v in f])
+        return r_all, J_all, details
+
+    # Problem protocol
+    def residuals(self, x) -> np.ndarray:
+        return self.evaluate(x, derivatives=False)[0]
+
+    def jacobian(self, x):
+        r, J, _ = self.evaluate(x, derivatives=True)
+        return r, J

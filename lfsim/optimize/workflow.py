@@ -1,0 +1,184 @@
+"""`lfsim optimize`: the design method's workflow, stage by stage, with checkpoints.
+
+Stages (the ``[optimize] stages`` of the design file, in this order):
+
+``mla``
+    the lenslet array alone: only the variables of the MLA's surfaces and of
+    the array itself move, under the full light-field merit at the sampled
+    sub-systems (a starting point for the lenslets with the relay and
+    eyepiece held);
+``relay_eyepiece``
+    the relay, tunable lens and eyepiece alone: every other variable;
+``integrated``
+    every variable, sampled sub-systems (``[optimize.sampling] stride``) at
+    every CDP depth;
+``full``
+    every variable, all M × N sub-systems at every CDP depth.
+
+Each stage is a damped least-squares (or Adam) run of
+:class:`~lfsim.optimize.merit.IniMerit` from the previous stage's design; its
+solver state is checkpointed after every accepted iteration in
+``OUT/checkpoints/<stage>.npz`` so an interrupted run resumes where it
+stopped (``resume=True``) and ends bit for bit where an uninterrupted run
+would.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..design.design import Design
+from ..fileio import save_figure, write_json
+from .merit import IniMerit, columns
+from .solvers import Bounds, adam, levenberg_marquardt
+
+
+def stage_columns(design: Design, cols, stage: str):
+    """The variables a stage moves (see the module docstring)."""
+    if stage in ("integrated", "full"):
+        return list(cols)
+    ini = design.ini
+    mla_names = {design.system.surfaces[i].name for i in ini.mla_surfaces} | {ini.mla}
+
+    def in_mla(c):
+        return c.state is None and c.name.split(".")[0] in mla_names
+
+    if stage == "mla":
+        return [c for c in cols if in_mla(c)]
+    if stage == "relay_eyepiece":
+        return [c for c in cols if not in_mla(c)]
+    raise ValueError(f"unknown stage {stage!r}")
+
+
+def _summary(details: dict) -> dict:
+    return {k: (round(v, 6) if isinstance(v, float) else v) for k, v in details.items()}
+
+
+def optimize(design: Design, out_dir, stages=None, iterations: int | None = None, solver: str | None = None,
+             resume: bool = False, progress: bool = False, log=print) -> dict:
+    """Run the stages; write the optimized design, the merit history and plots.
+
+    Returns the ``history.json`` document. ``OUT/<stem>_optimized.toml`` is the
+    result (the input file's table with the variables' values, and the merit
+    figures in its header).
+    """
+    from ..design.writer import write_design
+
+    spec = design.optimize
+    if spec is None:
+        raise ValueError(f"{design.path}: the design has no [optimize] section")
+    if not spec.variables:
+        raise ValueError(f"{design.path}: optimize.variables is empty: nothing to vary")
+    out = Path(out_dir)
+    (out / "checkpoints").mkdir(parents=True, exist_ok=True)
+    stages = list(stages or spec.stages)
+    iterations = int(iterations or spec.iterations)
+    solver = solver or spec.solver
+    all_cols = columns(design, spec)
+    current = design
+    doc = {"design": design.path, "solver": solver, "iterations_per_stage": iterations,
+           "variables": [c.label for c in all_cols], "stages": []}
+    t_all = time.perf_counter()
+    for stage in stages:
+        cols = stage_columns(design, all_cols, stage)
+        if not cols:
+            log(f"stage {stage}: no variables, skipped")
+            continue
+        stride = (1, 1) if stage == "full" else None
+        t0 = time.perf_counter()
+        merit = IniMerit(current, spec, cols=cols, stride=stride)
+        lo, hi = merit.bounds
+        x0 = np.clip(merit.x0, lo, hi)
+        r0, _, det0 = merit.evaluate(x0, derivatives=False)
+        ckpt = out / "checkpoints" / f"{stage}.npz"
+        log(f"stage {stage}: {len(cols)} variables, {merit.layout[0][1]} rays, merit {float(r0 @ r0):.6g}")
+        scale = np.maximum(np.abs(x0), 1e-3)
+        if solver == "lm":
+            res = levenberg_marquardt(merit, x0, Bounds(lo, hi), max_iterations=iterations, scale=scale,
+                                      checkpoint=ckpt, resume=resume, progress=progress)
+        else:
+            res = adam(merit, x0, Bounds(lo, hi), iterations=iterations, scale=scale, checkpoint=ckpt,
+                       resume=resume, progress=progress)
+        r1, _, det1 = merit.evaluate(res.x, derivatives=False)
+        current = merit.design_at(res.x)
+        secs = time.perf_counter() - t0
+        rec = {"stage": stage, "variables": [c.label for c in cols], "stride": list(merit.stride),
+               "rays": merit.layout[0][1], "status": res.status, "iterations": res.iterations,
+               "evaluations": res.evaluations, "merit_start": float(r0 @ r0), "merit_end": float(r1 @ r1),
+               "blocks_start": _summary(det0), "blocks_end": _summary(det1),
+               "x_start": [float(v) for v in x0], "x_end": [float(v) for v in res.x],
+               "history": res.history, "seconds": round(secs, 2)}
+        doc["stages"].append(rec)
+        log(f"stage {stage}: merit {rec['merit_start']:.6g} -> {rec['merit_end']:.6g} "
+            f"({res.status}, {res.iterations} iterations, {secs:.1f} s); "
+            f"GD max {det1['gd_max_deg']:.3f} deg")
+    doc["seconds"] = round(time.perf_counter() - t_all, 2)
+    stem = Path(design.path or "design").stem
+    path = out / f"{stem}_optimized.toml"
+    header = [f"{design.name}: optimized by `lfsim optimize` from {Path(design.path or '').name}",
+              f"solver {solver}, stages {', '.join(r['stage'] for r in doc['stages'])}, "
+              f"{doc['seconds']:.0f} s"]
+    for r in doc["stages"]:
+        header.append(f"  {r['stage']}: merit {r['merit_start']:.6g} -> {r['merit_end']:.6g} "
+                      f"({r['iterations']} iterations, {r['status']}, stride {r['stride'][0]}x{r['stride'][1]})")
+    header.append("Evaluate with: lfsim analyze THIS_FILE --out DIR --stride 1,1")
+    write_design(path, current.raw, header)
+    doc["optimized_design"] = path.name
+    plot_history(doc, out / "merit_history.png")
+    doc["plots"] = ["merit_history.png"]
+    write_json(out / "history.json", doc)
+    return doc
+
+
+def plot_history(doc: dict, path) -> None:
+    """Merit per accepted iteration, stage after stage (log scale)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 3.6))
+    start = 0
+    for rec in doc["stages"]:
+        costs = [rec["merit_start"]] + [h["cost"] for h in rec["history"]]
+        xs = np.arange(start, start + len(costs))
+        ax.semilogy(xs, costs, "o-", ms=3, label=f"{rec['stage']} ({rec['stride'][0]}x{rec['stride'][1]})")
+        start = xs[-1] + 1
+    ax.set_xlabel("accepted iteration")
+    ax.set_ylabel("merit (sum of squared residuals)")
+    ax.set_title(f"{Path(doc['design'] or '').name}: {doc['solver']}")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    save_figure(fig, path, dpi=110)
+    plt.close(fig)
+
+
+def compare(before: dict, after: dict, path) -> dict:
+    """Before/after table and bar plot of two ``lfsim analyze`` documents."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    keys = [("gd_max_deg", "GD max (°)"), ("gd_mean_deg", "GD mean (°)"), ("pa_max", "PA max"),
+            ("pa_mean", "PA mean"), ("contrast_nyquist_min", "contrast min"),
+            ("contrast_nyquist_mean", "contrast mean"), ("rms_spot_mean_arcmin", "RMS spot (′)")]
+    rows = {k: (before["summary"].get(k), after["summary"].get(k)) for k, _ in keys}
+    fig, ax = plt.subplots(figsize=(8, 3.6))
+    xs = np.arange(len(keys))
+    b = [rows[k][0] or 0.0 for k, _ in keys]
+    a = [rows[k][1] or 0.0 for k, _ in keys]
+    ax.bar(xs - 0.2, b, 0.4, label="before")
+    ax.bar(xs + 0.2, a, 0.4, label="after")
+    ax.set_xticks(xs, [lbl for _, lbl in keys], rotation=20, fontsize=8)
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3, axis="y")
+    fig.tight_layout()
+    save_figure(fig, path, dpi=110)
+    plt.close(fig)
+    return {k: {"before": v[0], "after": v[1]} for k, v in rows.items()}
+
