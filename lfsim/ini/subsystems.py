@@ -250,8 +250,9 @@ class RayJacobian:
     Values (N rays): ``pos`` (N, 2), ``dir`` (N, 3) in the viewing-window
     frame, ``status`` (N,) of the unclipped trace (apertures and lenslet cells
     not applied, so a ray that leaves its cell keeps a smooth path),
-    ``surf`` (N, S, 2) hit (x, y) on each recorded surface relative to the
-    ray's lenslet axis (global x, y: the MLA is untilted), ``cos_in`` (N, S)
+    ``surf`` (N, S, 2) hit (x, y) on each recorded surface in its local
+    frame (on a lenslet-array surface: relative to the ray's lenslet axis),
+    ``cos_in`` (N, S)
     cosine of incidence there. Derivatives ``d_pos`` (N, 2, K), ``d_dir``
     (N, 3, K), ``d_surf`` (N, S, 2, K), ``d_cos_in`` (N, S, K) are total
     derivatives: the launch slope is re-aimed (implicit function theorem on
@@ -341,12 +342,17 @@ def trace_rays_jacobian(model: IniModel, s, m, n, rho, k, columns, record=(), it
     cx, cy = g(c_r[:, 0], T.Float), g(c_r[:, 1], T.Float)
     for i in record:
         p_i, d_i = out.path[i]
+        Ri = dr.gather(T.Matrix3, Rs[i].T, block)  # global → surface i's local frame
+        q = Ri @ (p_i - dr.gather(T.Array3, os_[i], block))
         d_prev = out.path[i - 1][1] if i > 0 else dr.normalize(T.Array3(tx, ty, one))
         # incidence from the directions before and after (the normal is along their difference)
         dd = d_i - d_prev
         nrm = dr.norm(dd)
         cos_in = dr.select(nrm > 0, dr.abs(dr.dot(d_prev, dd)) / dr.maximum(nrm, 1e-300), 1.0)
-        outs += [p_i.x - cx, p_i.y - cy, cos_in]
+        if model.system.surfaces[i].array is not None:
+            outs += [q.x - cx, q.y - cy, cos_in]  # relative to the ray's lenslet axis
+        else:
+            outs += [q.x, q.y, cos_in]
     if derivatives:
         dr.forward_from(seed, flags=dr.ADFlag.ClearNone)
     val = np.stack([np.asarray(v, dtype=np.float64)[:N] for v in outs], axis=1)  # (N, O)

@@ -21,6 +21,8 @@ pa            Eq. (12) marginal-ray footprint errors |v − v′|/(√2 d_v) (me
 distortion    local distortion of each elemental image beyond its target
 crosstalk     marginal and pupil rays beyond (½ − margin) of the pitch on
               every MLA surface, µm
+aperture      pupil rays beyond a clear aperture of the relay or eyepiece, µm
+              (weighted like crosstalk; the analysis vignettes such rays)
 efl           relay–eyepiece focal length per CDP state, % from its target
 thickness     centre thickness of glass / air gaps below their minimum, µm
 tir           incidence below the critical angle + margin on TIR surfaces, °
@@ -212,7 +214,7 @@ class IniMerit:
         m = np.broadcast_to(subs.m[:, None, None], shape).ravel()
         n = np.broadcast_to(subs.n[:, None, None], shape).ravel()
         k = np.broadcast_to(subs.k[:, None, None], shape).ravel()
-        record = self._crosstalk_surfaces(model) + self._tir_surfaces(model)
+        record = self._record(model)
         cols = [(c.name, c.state) for c in self.cols]
         J = trace_rays_jacobian(model, s, m, n, rho, k, cols, record=record, derivatives=derivatives)
         if derivatives:  # tunable-lens columns: the tracer's power is in 1/mm, the variable in diopters
@@ -220,6 +222,17 @@ class IniMerit:
             J.d_pos, J.d_dir, J.d_surf, J.d_cos_in = (J.d_pos * conv, J.d_dir * conv, J.d_surf * conv,
                                                       J.d_cos_in * conv)
         return shape, J
+
+    def _record(self, model: IniModel) -> list[int]:
+        """Surfaces whose hits the merit needs: MLA (crosstalk), TIR, clear apertures."""
+        return self._crosstalk_surfaces(model) + self._tir_surfaces(model) + self._aperture_surfaces(model)
+
+    @staticmethod
+    def _aperture_surfaces(model: IniModel) -> list[int]:
+        """Surfaces of the display path with a clear aperture (outside the lenslet array)."""
+        last = model.spec.viewing_window
+        return [i for i, s in enumerate(model.system.surfaces[:last])
+                if s.aperture is not None and s.array is None and s.interaction != "break"]
 
     @staticmethod
     def _crosstalk_surfaces(model: IniModel) -> list[int]:
@@ -377,6 +390,32 @@ class IniMerit:
                     sin = np.maximum(np.sqrt(1.0 - cosv ** 2), 1e-12)
                     jac = np.where(over[..., None], dcos_ / sin[..., None] * DEG, 0.0) * w.tir
                 add(f"tir_{model.system.surfaces[i].name}", np.where(over, need - th, 0.0) * w.tir, jac)
+
+        # Clear apertures: rays of the pupil stay inside every aperture (the analysis
+        # vignettes them there), µm beyond the edge.
+        ap_surf = self._aperture_surfaces(model)
+        off = nmla + len(tirs)
+        for j_, i in enumerate(ap_surf):
+            ap = model.system.surfaces[i].aperture
+            h = J.surf[:, off + j_].reshape(S, F, R, 2) - np.array(ap.decenter)
+            dh = dsurf[:, :, :, off + j_] if derivatives else None
+            if ap.kind == "circular":
+                rad = np.hypot(h[..., 0], h[..., 1])
+                over = ok & (rad > ap.radius)
+                jac = None
+                if derivatives:
+                    u = np.where(over[..., None], h / np.maximum(rad, 1e-300)[..., None], 0.0)
+                    jac = np.einsum("sfra,sfrak->sfrk", u, dh) * 1000.0 * w.crosstalk
+                add(f"aperture_{model.system.surfaces[i].name}",
+                    np.where(over, rad - ap.radius, 0.0) * 1000.0 * w.crosstalk, jac)
+            else:
+                ex = np.abs(h) - np.array(ap.half_width)
+                over = (ex > 0) & ok[..., None]
+                jac = None
+                if derivatives:
+                    jac = np.where(over[..., None], np.sign(h)[..., None] * dh, 0.0) * 1000.0 * w.crosstalk
+                add(f"aperture_{model.system.surfaces[i].name}", np.where(over, ex, 0.0) * 1000.0 * w.crosstalk,
+                    jac)
 
         # Relay–eyepiece focal length per CDP state (central differences of the first-order maps).
         f = ref["efl"]
