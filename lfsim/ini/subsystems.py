@@ -353,8 +353,13 @@ def trace_rays_jacobian(model: IniModel, s, m, n, rho, k, columns, record=(), it
             outs += [q.x - cx, q.y - cy, cos_in]  # relative to the ray's lenslet axis
         else:
             outs += [q.x, q.y, cos_in]
+    grads = []
     if derivatives:
         dr.forward_from(seed, flags=dr.ADFlag.ClearNone)
+        grads = [dr.grad(v) for v in outs]
+    # One kernel for every value and derivative (evaluated one by one, each would
+    # re-run the whole trace).
+    dr.eval(*outs, out.status, *grads)
     val = np.stack([np.asarray(v, dtype=np.float64)[:N] for v in outs], axis=1)  # (N, O)
     status = np.asarray(out.status)[:N].astype(np.int64)
     nS = len(record)
@@ -365,7 +370,7 @@ def trace_rays_jacobian(model: IniModel, s, m, n, rho, k, columns, record=(), it
         return RayJacobian(**res, d_pos=z((N, 2, 0)), d_dir=z((N, 3, 0)), d_surf=z((N, nS, 2, 0)),
                            d_cos_in=z((N, nS, 0)), ds_pos=z((N, 2, 2)), ds_dir=z((N, 3, 2)),
                            ds_surf=z((N, nS, 2, 2)), ds_cos_in=z((N, nS, 2)))
-    G = np.stack([np.asarray(dr.grad(v), dtype=np.float64).reshape(C, N) for v in outs], axis=1)  # (C, O, N)
+    G = np.stack([np.asarray(gv, dtype=np.float64).reshape(C, N) for gv in grads], axis=1)  # (C, O, N)
     G = np.moveaxis(G, 2, 0)  # (N, C, O)
     dt = G[:, K:K + 2, :]  # (N, 2, O)
     A = np.moveaxis(dt[:, :, 0:2], 1, 2)  # ∂stop/∂t (N, 2, 2): rows stop x/y, cols t x/y

@@ -24,7 +24,8 @@ crosstalk     marginal and pupil rays beyond (½ − margin) of the pitch on
 aperture      pupil rays beyond a clear aperture of the relay or eyepiece, µm
               (weighted like crosstalk; the analysis vignettes such rays)
 efl           relay–eyepiece focal length per CDP state, % from its target
-thickness     centre thickness of glass / air gaps below their minimum, µm
+thickness     centre thickness of glass / air gaps below their minimum, and
+              edge thickness of glass elements at their clear radius, µm
 tir           incidence below the critical angle + margin on TIR surfaces, °
 lost          a ray lost to a failed refraction or intersection: a constant
               (steps that lose rays raise the merit and are rejected)
@@ -226,6 +227,44 @@ class IniMerit:
     def _record(self, model: IniModel) -> list[int]:
         """Surfaces whose hits the merit needs: MLA (crosstalk), TIR, clear apertures."""
         return self._crosstalk_surfaces(model) + self._tir_surfaces(model) + self._aperture_surfaces(model)
+
+    @staticmethod
+    def _glass_pairs(model: IniModel) -> list[tuple[int, int, float]]:
+        """(front, back, radius) of each glass element of the display path outside the
+        lenslet array: a refracting surface into glass followed by a refracting one."""
+        surf = model.system.surfaces
+        names = model.tracer.names
+        out = []
+        for i in range(model.spec.viewing_window - 1):
+            a, b = surf[i], surf[i + 1]
+            if a.array is not None or b.array is not None or a.interaction != "refract":
+                continue
+            if b.interaction != "refract" or model.values0[names.index(f"{a.name}.index")] <= 1.0001:
+                continue
+            radii = [s.aperture.radius for s in (a, b) if s.aperture is not None and s.aperture.kind == "circular"]
+            if radii and a.global_position is None and b.global_position is None:
+                out.append((i, i + 1, max(radii)))
+        return out
+
+    @staticmethod
+    def _edge_thickness(model: IniModel, values, i: int, j: int, radius: float) -> float:
+        """Axial glass thickness between surfaces i and j at ``radius`` (sags from the
+        tracer's surface model with parameters ``values``); −inf where a sag is undefined."""
+        from ..optics.surfaces import Shape, sag
+
+        T, names = model.tracer.T, model.tracer.names
+
+        def z(k):
+            o = model.tracer._shape_owner(model.system.surfaces[k])
+            v = lambda key: T.Float(float(values[names.index(f"{o.name}.{key}")]))  # noqa: E731
+            shape = Shape(v("curvature"), v("conic"), {a: v(f"A{a}") for a in o.asphere},
+                          {ij: v(f"x{ij[0]}y{ij[1]}") for ij in o.xy}, 1.0 / o.norm_radius)
+            zz, _, _, inside = sag(T.Float(radius), T.Float(0.0), shape)
+            return float(zz[0]) if bool(inside[0]) else math.nan
+
+        thick = float(values[names.index(f"{model.system.surfaces[i].name}.thickness")])
+        e = thick - z(i) + z(j)
+        return e if math.isfinite(e) else -math.inf
 
     @staticmethod
     def _aperture_surfaces(model: IniModel) -> list[int]:
@@ -445,6 +484,33 @@ class IniMerit:
             add("thickness", np.array(res_t), np.array(jac_t) if derivatives else None)
 
         self.layout = [(name, res.size) for name, res, _ in blocks]
+        # Edge thickness of glass elements at their larger clear radius.
+        if t.min_edge_thickness is not None:
+            pairs = self._glass_pairs(model)
+            if pairs:
+                vals = model.values0
+                et = np.array([self._edge_thickness(model, vals, i, j, rad) for i, j, rad in pairs])
+                over = et < t.min_edge_thickness
+                jac = None
+                if derivatives:
+                    names = model.tracer.names
+                    jac = np.zeros((len(pairs), K))
+                    for q, (i, j, rad) in enumerate(pairs):
+                        if not over[q]:
+                            continue
+                        own = {model.system.surfaces[i].name, model.system.surfaces[j].name}
+                        for c_, col in enumerate(self.cols):
+                            if col.state is not None or col.name.split(".")[0] not in own:
+                                continue
+                            h = 1e-7 * max(1.0, abs(x[c_]))
+                            vp, vm = vals.copy(), vals.copy()
+                            vp[names.index(col.name)] += h
+                            vm[names.index(col.name)] -= h
+                            jac[q, c_] = -(self._edge_thickness(model, vp, i, j, rad)
+                                           - self._edge_thickness(model, vm, i, j, rad)) / (2 * h)
+                    jac *= 1000.0 * w.thickness
+                add("edge_thickness", np.where(over, t.min_edge_thickness - et, 0.0) * 1000.0 * w.thickness, jac)
+
         r_all = np.concatenate([b[1] for b in blocks])
         J_all = np.concatenate([b[2] for b in blocks]) if derivatives else None
         details = {name: float(np.sum(res ** 2)) for name, res, _ in blocks}
