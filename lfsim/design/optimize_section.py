@@ -23,6 +23,9 @@ Schema (units mm, degrees, diopters)::
     [optimize.targets]       # all optional
     gd_max_deg = 0.75        # Eq. (11) target, > 0 (default: [ini.analysis] gd_target_deg)
     pa_max = 0.3             # Eq. (12) target, > 0 (default: [ini.analysis] pa_target)
+    spot_axis_max_arcmin = 1.0    # optional: RMS spot along x and along y of every
+                                  # sub-system and field at most this (a contrast
+                                  # floor: the MTF at Nyquist falls with the larger axis)
     local_distortion_max = 0.05   # per elemental image (fraction), > 0
     crosstalk_margin = 0.02  # marginal rays stay this fraction of the pitch inside
                              # their lenslet cell, in [0, 0.5)
@@ -108,6 +111,7 @@ class OptimizeTargets:
 
     gd_max_deg: float | None = None
     pa_max: float | None = None
+    spot_axis_max_arcmin: float | None = None
     local_distortion_max: float = 0.05
     crosstalk_margin: float = 0.02
     efl_mm: float | None = None
@@ -276,7 +280,7 @@ def _targets(ctx, tab) -> OptimizeTargets:
     ctx.no_unknown(tab, TARGET_KEYS, "optimize.targets")
     p = "optimize.targets"
     kw = {}
-    for key in ("gd_max_deg", "pa_max", "local_distortion_max"):
+    for key in ("gd_max_deg", "pa_max", "local_distortion_max", "spot_axis_max_arcmin"):
         if key in tab:
             kw[key] = ctx.number(tab, key, p, positive=True)
     if "crosstalk_margin" in tab:

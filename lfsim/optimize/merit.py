@@ -14,6 +14,8 @@ block         residuals
 spot          √w_j · (r_j − r̄) per Gauss–Legendre pupil ray, arcmin, over
               √(sub-systems × fields): the weighted mean square RMS spot
               (retinal tangents r = t − h·D/1000 about the CDP, as `analyze`)
+spot_axis_max 10 × the excess of the RMS spot along x or y of a sub-system
+              and field over ``spot_axis_max_arcmin`` (a contrast floor)
 gd            Eq. (11) chief-ray error |r − r_par| in degrees (mean part),
               plus 10 × its excess over the GD target per sub-system
 pa            Eq. (12) marginal-ray footprint errors |v − v′|/(√2 d_v) (mean
@@ -342,6 +344,18 @@ class IniMerit:
             dcen = np.sum(wn[..., None, None] * dr_[:, :, g], axis=2, keepdims=True)
             jac = np.sqrt(wn)[..., None, None] * (dr_[:, :, g] - dcen) * scale
         add("spot", res, jac)
+        if t.spot_axis_max_arcmin is not None:
+            # RMS along x and along y of every sub-system and field beyond the limit.
+            dev = r[:, :, g] - cen  # (S, F, G, 2)
+            rms_a = np.sqrt(np.sum(wn[..., None] * dev ** 2, axis=2)) * ARCMIN  # (S, F, 2)
+            over = (rms_a > t.spot_axis_max_arcmin) & okg.any(-1)[..., None]
+            jac = None
+            if derivatives:
+                ddev = dr_[:, :, g] - dcen
+                drms = (np.sum(wn[..., None, None] * dev[..., None] * ddev, axis=2) * ARCMIN ** 2
+                        / np.maximum(rms_a, 1e-300)[..., None])
+                jac = np.where(over[..., None], drms, 0.0) * 10.0 * w.spot
+            add("spot_axis_max", np.where(over, rms_a - t.spot_axis_max_arcmin, 0.0) * 10.0 * w.spot, jac)
 
         # GD (Eq. 11) on the centre field's chief ray, against the paraxial chief ray.
         par_c, par_m = ref["par_c"], ref["par_m"]
