@@ -11,7 +11,8 @@ Schema (units mm, degrees, diopters)::
     variables = ["S3.x2y0", { name = "S1.curvature", min = -0.05, max = 0.05 },
                  { name = "tunable", min = -2.0, max = 4.5 }]     # default: none
     solver = "lm"            # "lm" (damped least squares) | "adam"
-    iterations = 30          # > 0
+    iterations = 30          # > 0, per stage
+    full_iterations = 3      # > 0, the "full" stage's (default: iterations)
     stages = ["mla", "relay_eyepiece", "integrated", "full"]
                              # the workflow stages to run: any non-empty subset,
                              # in this order; all four by default with [ini],
@@ -74,7 +75,8 @@ from dataclasses import dataclass, field, replace
 from ..optics.prescription import System
 from .errors import MISSING
 
-OPTIMIZE_KEYS = {"variables", "solver", "iterations", "stages", "sampling", "targets", "weights"}
+OPTIMIZE_KEYS = {"variables", "solver", "iterations", "full_iterations", "stages", "sampling", "targets",
+                 "weights"}
 SOLVERS = ("lm", "adam")
 #: Workflow stages in the order they run.
 STAGES = ("mla", "relay_eyepiece", "integrated", "full")
@@ -159,6 +161,7 @@ class OptimizeSpec:
     variables: tuple[Variable, ...] = ()
     solver: str = "lm"
     iterations: int = 30
+    full_iterations: int | None = None  # iterations of the "full" stage (default: iterations)
     stages: tuple[str, ...] = STAGES
     stride: tuple[int, int] = (4, 2)
     fields: int = 3
@@ -362,6 +365,8 @@ def parse_optimize(ctx, data: dict, system: System, ini=None) -> OptimizeSpec | 
     kw["solver"] = solver
     if "iterations" in tab:
         kw["iterations"] = ctx.integer(tab, "iterations", "optimize", 1)
+    if "full_iterations" in tab:
+        kw["full_iterations"] = ctx.integer(tab, "full_iterations", "optimize", 1)
     kw["stages"] = _stages(ctx, tab["stages"], ini) if "stages" in tab else (
         STAGES if ini is not None else ("full",))
     kw.update(_sampling(ctx, ctx.table(tab, "sampling", "optimize", {})))

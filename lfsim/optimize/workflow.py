@@ -75,6 +75,7 @@ def optimize(design: Design, out_dir, stages=None, iterations: int | None = None
     out = Path(out_dir)
     (out / "checkpoints").mkdir(parents=True, exist_ok=True)
     stages = list(stages or spec.stages)
+    override = iterations
     iterations = int(iterations or spec.iterations)
     solver = solver or spec.solver
     all_cols = columns(design, spec)
@@ -96,11 +97,14 @@ def optimize(design: Design, out_dir, stages=None, iterations: int | None = None
         ckpt = out / "checkpoints" / f"{stage}.npz"
         log(f"stage {stage}: {len(cols)} variables, {merit.layout[0][1]} rays, merit {float(r0 @ r0):.6g}")
         scale = np.maximum(np.abs(x0), 1e-3)
+        n_it = iterations
+        if stage == "full" and spec.full_iterations is not None and override is None:
+            n_it = spec.full_iterations
         if solver == "lm":
-            res = levenberg_marquardt(merit, x0, Bounds(lo, hi), max_iterations=iterations, scale=scale,
+            res = levenberg_marquardt(merit, x0, Bounds(lo, hi), max_iterations=n_it, scale=scale,
                                       checkpoint=ckpt, resume=resume, progress=progress)
         else:
-            res = adam(merit, x0, Bounds(lo, hi), iterations=iterations, scale=scale, checkpoint=ckpt,
+            res = adam(merit, x0, Bounds(lo, hi), iterations=n_it, scale=scale, checkpoint=ckpt,
                        resume=resume, progress=progress)
         r1, _, det1 = merit.evaluate(res.x, derivatives=False)
         current = merit.design_at(res.x)
