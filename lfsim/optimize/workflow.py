@@ -129,7 +129,9 @@ def optimize(design: Design, out_dir, stages=None, iterations: int | None = None
         header.append(f"  {r['stage']}: merit {r['merit_start']:.6g} -> {r['merit_end']:.6g} "
                       f"({r['iterations']} iterations, {r['status']}, stride {r['stride'][0]}x{r['stride'][1]})")
     header.append("Evaluate with: lfsim analyze THIS_FILE --out DIR --stride 1,1")
-    write_design(path, current.raw, header)
+    raw = dict(current.raw)
+    raw["name"] = f"{design.name} (optimized)"
+    write_design(path, raw, header)
     doc["optimized_design"] = path.name
     plot_history(doc, out / "merit_history.png")
     doc["plots"] = ["merit_history.png"]
