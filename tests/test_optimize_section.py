@@ -38,7 +38,12 @@ SCENES = Path(__file__).resolve().parents[1] / "scenes"
 
 @pytest.fixture(scope="module")
 def freeform_text():
-    return (SCENES / "ini_freeform.toml").read_text()
+    """scenes/ini_freeform.toml without its own [optimize] tables (the tests add theirs)."""
+    import re
+
+    text = (SCENES / "ini_freeform.toml").read_text()
+    # drop from "[optimize]" up to the next table that is not an [optimize.*] table
+    return re.sub(r"(?ms)^\[optimize(\.[a-z]+)?\]\n.*?(?=^\[(?!optimize))", "", text)
 
 
 @pytest.fixture(scope="module")
