@@ -286,11 +286,13 @@ def _targets(ctx, tab) -> OptimizeTargets:
     for key in ("gd_max_deg", "pa_max", "local_distortion_max", "spot_axis_max_arcmin"):
         if key in tab:
             kw[key] = ctx.number(tab, key, p, positive=True)
-    if "crosstalk_margin" in tab:
-        v = ctx.number(tab, "crosstalk_margin", p, nonneg=True)
-        if not v < 0.5:
-            raise ctx.err(f"{p}.crosstalk_margin", v, "a fraction of the lenslet pitch in [0, 0.5)")
-        kw["crosstalk_margin"] = v
+    for key, top, allowed in (("crosstalk_margin", 0.5, "a fraction of the lenslet pitch in [0, 0.5)"),
+                              ("tir_margin_deg", 90.0, "an angle in degrees in [0, 90)")):
+        if key in tab:
+            v = ctx.number(tab, key, p, nonneg=True)
+            if not v < top:
+                raise ctx.err(f"{p}.{key}", v, allowed)
+            kw[key] = v
     if "efl_mm" in tab:
         v = tab["efl_mm"]
         if isinstance(v, float) and math.isnan(v):
@@ -303,11 +305,6 @@ def _targets(ctx, tab) -> OptimizeTargets:
     for key in ("min_center_thickness", "min_edge_thickness", "min_air_gap", "min_prism_thickness"):
         if key in tab:
             kw[key] = ctx.number(tab, key, p, nonneg=True)
-    if "tir_margin_deg" in tab:
-        v = ctx.number(tab, "tir_margin_deg", p, nonneg=True)
-        if not v < 90:
-            raise ctx.err(f"{p}.tir_margin_deg", v, "an angle in degrees in [0, 90)")
-        kw["tir_margin_deg"] = v
     return OptimizeTargets(**kw)
 
 
