@@ -19,12 +19,8 @@ eye focused at 750 mm, 3 mm pupil. Prints tables and writes
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-import time
 from pathlib import Path
-
-import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -32,56 +28,26 @@ sys.path.insert(0, str(ROOT))
 import lfsim  # noqa: E402
 from lfsim.design.content import load_content  # noqa: E402
 from lfsim.fileio import save_figure, write_json  # noqa: E402
-from lfsim.ini.model import model_at_depth  # noqa: E402
-from lfsim.render import display_eye, mitsuba  # noqa: E402
-from lfsim.render.accuracy import paired_renders, relative_rmse  # noqa: E402
-from lfsim.render.analytic import ReverseOptics  # noqa: E402
-from lfsim.render.content import scene_dict  # noqa: E402
-from lfsim.render.display import DisplayLayout  # noqa: E402
-from lfsim.render.elemental import elemental_images  # noqa: E402
-from lfsim.render.eye import EyeSpec  # noqa: E402
-from lfsim.render.focal_stack import INTEGRATOR, render  # noqa: E402
-from lfsim.render.meshes import tessellation  # noqa: E402
+from lfsim.render.accuracy import error_vs_time  # noqa: E402
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="smaller images and fewer settings")
     args = ap.parse_args(argv)
-    mi = mitsuba()
     res = (64, 37) if args.quick else (128, 74)
     spps = [4, 16, 64] if args.quick else [4, 16, 64, 256]
     ref_spp = 1024 if args.quick else 4096
     dens = [0.25, 0.5, 1.0] if args.quick else [0.125, 0.25, 0.5, 1.0, 2.0]
     pair_spp = 16 if args.quick else 64
     content = load_content(ROOT / "scenes" / "fig9_wall.toml")
-    cscene = mi.load_dict(scene_dict(content))
     doc = {"resolution": list(res), "reference_spp": ref_spp, "pair_spp": pair_spp, "designs": {}}
     for name in ("ini_ideal", "ini_coaxial", "ini_freeform"):
         design = lfsim.load(ROOT / "scenes" / f"{name}.toml")
-        model = model_at_depth(design, 1000.0 / 750.0)
-        layout = DisplayLayout.from_model(model)
-        display = elemental_images(model, cscene, layout)
-        fx, fy = model.state(0).fov_deg
-        eye = EyeSpec("ideal", 3.0, 750.0, (fx, fy), res)
-        key = display_eye.attach(ReverseOptics(model, 0))
-
-        def analytic(spp, seed):
-            return render({"type": "scene", "display": layout.emitter_dict(display),
-                           "sensor": display_eye.sensor_dict(eye, key, spp, seed), "integrator": INTEGRATOR})
-
-        ref, t_ref = analytic(ref_spp, 1000)
-        rows_spp = []
-        for spp in spps:
-            img, secs = analytic(spp, 0)
-            rows_spp.append({"spp": spp, "rel_rmse": relative_rmse(img, ref), "seconds": secs})
-        display_eye.release(key)
-        pairs = paired_renders(model, layout, display, eye, spp=pair_spp, densities=dens)
-        base, t_an = pairs["analytic"]
-        rows_seg = [{"density": S, **tessellation(S), "rel_rmse": relative_rmse(pairs[S][0], base),
-                     "seconds": pairs[S][1]} for S in dens]
-        doc["designs"][name] = {"spp": rows_spp, "reference_seconds": t_ref, "tessellation": rows_seg,
-                                "analytic_pair_seconds": t_an}
+        d = error_vs_time(design, content, cdp_mm=750.0, resolution=res, spps=spps, reference_spp=ref_spp,
+                          densities=dens, pair_spp=pair_spp)
+        doc["designs"][name] = d
+        rows_spp, rows_seg, t_ref, t_an = d["spp"], d["tessellation"], d["reference_seconds"], d["analytic_pair_seconds"]
         print(f"\n{name}: analytic path, {res[0]}x{res[1]} px, vs {ref_spp} spp ({t_ref:.1f} s)")
         print("  spp    rel. RMSE   seconds")
         for r in rows_spp:

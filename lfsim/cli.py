@@ -64,8 +64,8 @@ def read_rays_csv(path: str) -> tuple[np.ndarray, np.ndarray]:
             except (IndexError, ValueError):
                 val = row[j] if j < len(row) else ""
                 raise InputError(f"{path}: line {r} column {c!r} = {val!r}: expected a number") from None
-            if not math.isfinite(v):
-                raise InputError(f"{path}: line {r} column {c!r} = {row[j]!r}: expected a finite number")
+            if not (math.isfinite(v) and abs(v) <= 1e15):  # the design files' bound (lfsim.design.loader.MAX_ABS)
+                raise InputError(f"{path}: line {r} column {c!r} = {row[j]!r}: expected a finite number, |x| <= 1e15")
             data[r - 2, k] = v
     if len(data) == 0:
         raise InputError(f"{path}: no rays after the header")
@@ -369,8 +369,32 @@ def cmd_focal_stack(args) -> int:
     return 0
 
 
+def cmd_report_accuracy(args) -> int:
+    from .analysis.accuracy_report import report
+
+    log = (lambda msg: None) if args.json else (lambda msg: print(msg, file=sys.stderr))
+    doc = report(args.out, quick=args.quick, log=log)
+    if args.json:
+        print(_dump(doc))
+        return 0
+    print(f"error against run time of {len(doc['knobs'])} knobs in {doc['total_seconds']:.0f} s")
+    for k, v in zip(doc["knobs"], doc["verdicts"]):
+        meets = {True: "meets its target", False: "MISSES its target", None: "no target"}[v["meets_target"]]
+        err = " / ".join("-" if e is None else f"{e:.3g}" for e in v["error_at_default"] or [None])
+        print(f"  {k['stage']:8s} {k['key']:17s} default {v['default']:>14s}: error {err:>9s}  {meets}")
+    print(f"wrote {args.out}/accuracy.md and {len(doc['plots'])} plots in {args.out}/img")
+    return 0
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with a one-line error (exit status 2) instead of the usage text."""
+
+    def error(self, message):
+        self.exit(2, f"lfsim: error: {self.prog}: {' '.join(message.split())}\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="lfsim", description=__doc__.split("\n")[0])
+    p = _Parser(prog="lfsim", description=__doc__.split("\n")[0])
     p.add_argument("--version", action="version", version=f"lfsim {__version__}")
     sub = p.add_subparsers(dest="verb", required=True, metavar="VERB")
 
@@ -458,6 +482,15 @@ def build_parser() -> argparse.ArgumentParser:
     fs.add_argument("--out", default="renders/focal_stack", help="output directory (default renders/focal_stack)")
     fs.add_argument("--json", action="store_true")
     fs.set_defaults(func=cmd_focal_stack)
+
+    rp = sub.add_parser("report", help="reports: `report accuracy` (error against run time of every knob)")
+    rsub = rp.add_subparsers(dest="report", required=True, metavar="REPORT")
+    acc = rsub.add_parser("accuracy", help="measure error against run time of every approximation knob and write "
+                          "accuracy.md with plots")
+    acc.add_argument("--out", default="docs", help="output folder: accuracy.md and img/accuracy_*.png (default docs)")
+    acc.add_argument("--quick", action="store_true", help="a small version: fewer settings, rays and pixels")
+    acc.add_argument("--json", action="store_true")
+    acc.set_defaults(func=cmd_report_accuracy)
     return p
 
 
@@ -476,6 +509,10 @@ def main(argv=None) -> int:
         return 2
     except ValueError as e:
         print(f"lfsim: error: {' '.join(str(e).split())}", file=sys.stderr)
+        return 2
+    except OSError as e:  # an output path that cannot be written, a directory given for a file, ...
+        where = f"{e.filename}: " if e.filename else ""
+        print(f"lfsim: error: {where}{' '.join(str(e.strerror or e).split())}", file=sys.stderr)
         return 2
 
 

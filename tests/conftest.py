@@ -1,3 +1,4 @@
+import math
 import os
 import warnings
 from pathlib import Path
@@ -33,3 +34,40 @@ def make_design(tmp_path):
 def pytest_configure(config):
     warnings.filterwarnings("ignore", message=".*NumbaIRAssumptionWarning.*")
     np.set_printoptions(precision=15)
+
+
+# ------------------------------------------------ measured accuracy of stiff cases
+_ACCURACY: list[tuple[str, str, str, float, float]] = []
+
+
+@pytest.fixture
+def accuracy(request):
+    """Check and record a measured error: ``accuracy(quantity, value, bound, precision="float64")``.
+
+    Asserts ``value <= bound`` (a finite value; ``bound=None`` only reports it) and keeps the figure, so every
+    stiff or extreme case reports what it measured: the table is printed at
+    the end of the run (section "measured accuracy of stiff and extreme cases").
+    ``precision`` says what was compared, e.g. "float64" (against a known
+    value) or "f32 vs f64" (float32 against float64).
+    """
+    case = request.node.name.removeprefix("test_")
+
+    def check(quantity: str, value, bound: float | None, precision: str = "float64") -> float:
+        v = float(value)
+        _ACCURACY.append((case, quantity, precision, v, bound))
+        assert math.isfinite(v), f"{case}: {quantity} ({precision}) = {v!r}"
+        if bound is not None:  # None: a figure that is reported, not bounded
+            assert v <= bound, f"{case}: {quantity} ({precision}) = {v:.3g} > {bound:.3g}"
+        return v
+
+    return check
+
+
+def pytest_terminal_summary(terminalreporter):
+    if not _ACCURACY:
+        return
+    tr = terminalreporter
+    tr.section("measured accuracy of stiff and extreme cases")
+    tr.write_line(f"{'case':56s} {'quantity':52s} {'compared':10s} {'measured':>10s}  bound")
+    for case, q, prec, v, b in _ACCURACY:
+        tr.write_line(f"{case[:56]:56s} {q[:52]:52s} {prec:10s} {v:10.3g}  {'-' if b is None else f'{b:.0e}'}")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -72,6 +73,26 @@ class Design:
     def surfaces(self):
         return self.system.surfaces
 
+    def wavelength(self, wavelength_nm: float | None = None) -> float:
+        """``wavelength_nm`` (default: the primary), checked against every medium's data range.
+
+        Raises ``ValueError`` (one line naming the file, the value and the
+        medium) where a dispersion formula would be extrapolated.
+        """
+        if wavelength_nm is None:
+            return float(self.system.primary_wavelength_nm)
+        lam = float(wavelength_nm)
+        where = self.path or "<dict>"
+        if not (math.isfinite(lam) and lam > 0):
+            raise ValueError(f"{where}: wavelength_nm = {wavelength_nm!r}: must be a positive number")
+        media = [("object.material", self.system.object_material)] + [
+            (f"surfaces[{i}].material", s.material) for i, s in enumerate(self.surfaces)]
+        for key, m in media:
+            if not m.in_range(lam):
+                raise ValueError(f"{where}: wavelength_nm = {lam:g}: {key} {m.name} has dispersion data "
+                                 f"for {m.range_nm[0]:g}-{m.range_nm[1]:g} nm only")
+        return lam
+
     def parameter_names(self) -> list[str]:
         return self.system.parameter_names()
 
@@ -107,9 +128,7 @@ class Design:
             raise ValueError(f"origins {o.shape} and directions {d.shape} differ in shape")
         if np.any(np.linalg.norm(d, axis=1) == 0):
             raise ValueError("directions contain a zero vector")
-        lam = self.system.primary_wavelength_nm if wavelength_nm is None else float(wavelength_nm)
-        if not lam > 0:
-            raise ValueError(f"wavelength_nm must be > 0, got {wavelength_nm!r}")
+        lam = self.wavelength(wavelength_nm)
         if len(o) == 0:
             e3, e1 = np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
             return TraceResult(e3, e3.copy(), e1, np.zeros(0), e1.copy(), np.zeros((0, 2), np.int64),
@@ -149,7 +168,7 @@ class Design:
         """First-order properties (see :func:`lfsim.optics.first_order.first_order`)."""
         from ..optics.first_order import first_order
 
-        lam = self.system.primary_wavelength_nm if wavelength_nm is None else float(wavelength_nm)
+        lam = self.wavelength(wavelength_nm)
         tracer = None if method == "paraxial" else self.tracer("float64")
         return first_order(self.system, lam, tracer=tracer, method=method)
 

@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 
 from ..optics.prescription import System
 from .errors import MISSING
+from .loader import MAX_ABS
 
 INI_KEYS = {"mla", "pixel_pitch", "pixels_per_ei", "cdp_diopters", "viewing_window",
             "aperture_array", "tunable", "eye", "analysis"}
@@ -81,7 +82,7 @@ def _surface_ref(ctx, tab, key, path, names, default=MISSING):
     v = tab.get(key, default)
     if v is MISSING:
         raise ctx.err(f"{path}.{key}", MISSING, "required: a surface name")
-    if v not in names:
+    if not isinstance(v, str) or v not in names:
         raise ctx.err(f"{path}.{key}", v, f"no such surface; surfaces: {', '.join(names)}")
     return names[v]
 
@@ -95,7 +96,7 @@ def parse_ini(ctx, data: dict, system: System) -> IniSpec | None:
     names = {s.name: i for i, s in enumerate(system.surfaces)}
 
     mla = tab.get("mla", MISSING)
-    if mla not in system.arrays:
+    if not isinstance(mla, str) or mla not in system.arrays:
         raise ctx.err("ini.mla", mla, f"must name a lenslet array; defined: {', '.join(system.arrays) or 'none'}")
     members = system.array_groups()[mla]
     if members[0] != 0:
@@ -147,8 +148,9 @@ def parse_ini(ctx, data: dict, system: System) -> IniSpec | None:
     if depths is not None:
         if (not isinstance(depths, list) or not depths
                 or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0
-                       for v in depths)):
-            raise ctx.err("ini.cdp_diopters", depths, "a non-empty list of depths in diopters, each >= 0")
+                       or v > MAX_ABS for v in depths)):
+            raise ctx.err("ini.cdp_diopters", depths, f"a non-empty list of depths in diopters, each >= 0 "
+                          f"(and <= {MAX_ABS:g})")
         if len(set(depths)) != len(depths):
             raise ctx.err("ini.cdp_diopters", depths, "depths must be distinct")
         spec.cdp_diopters = [float(v) for v in depths]
@@ -159,9 +161,10 @@ def parse_ini(ctx, data: dict, system: System) -> IniSpec | None:
     if spec.tunable is not None and "power_diopters" in tab["tunable"]:
         pw = tab["tunable"]["power_diopters"]
         if (not isinstance(pw, list) or len(pw) != len(spec.cdp_diopters)
-                or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) for v in pw)):
+                or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
+                       or abs(v) > MAX_ABS for v in pw)):
             raise ctx.err("ini.tunable.power_diopters", pw,
-                          f"one finite power (diopters) per CDP depth ({len(spec.cdp_diopters)})")
+                          f"one finite power (diopters, |p| <= {MAX_ABS:g}) per CDP depth ({len(spec.cdp_diopters)})")
         spec.tunable_power_diopters = [float(v) for v in pw]
 
     eye = ctx.table(tab, "eye", "ini", {})

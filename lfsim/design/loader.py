@@ -58,6 +58,9 @@ SURFACE_KEYS = {
 }
 SURFACE_TYPES = ("standard", "even_asphere", "xy_polynomial", "coordinate_break", "paraxial")
 TOP_KEYS = {"name", "description", "system", "object", "surfaces", "arrays", "ini", "render", "optimize"}
+#: Largest magnitude of a finite design number (mm, 1/mm, degrees, ...): 1e15 mm is 1e9 km,
+#: and the tracer's squares of such numbers stay finite in float32 (max 3.4e38).
+MAX_ABS = 1e15
 
 
 class _Ctx:
@@ -82,6 +85,8 @@ class _Ctx:
         v = float(v)
         if math.isnan(v) or (math.isinf(v) and not allow_inf) or (finite and not allow_inf and not math.isfinite(v)):
             raise self.err(f"{path}.{key}", v, "expected a finite number" + (" or inf" if allow_inf else ""))
+        if math.isfinite(v) and abs(v) > MAX_ABS:
+            raise self.err(f"{path}.{key}", v, f"|value| must be <= {MAX_ABS:g}" + (" (or inf)" if allow_inf else ""))
         if positive and not v > 0:
             raise self.err(f"{path}.{key}", v, "must be > 0")
         if nonneg and not v >= 0:
@@ -93,9 +98,10 @@ class _Ctx:
         if isinstance(v, (int, float)) and not isinstance(v, bool) and length == 2 and key == "pitch":
             v = [v, v]
         if not isinstance(v, (list, tuple)) or len(v) != length or any(
-            isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x) for x in v
+            isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x) or abs(x) > MAX_ABS
+            for x in v
         ):
-            raise self.err(f"{path}.{key}", v, f"expected a list of {length} finite numbers")
+            raise self.err(f"{path}.{key}", v, f"expected a list of {length} finite numbers (|x| <= {MAX_ABS:g})")
         return tuple(float(x) for x in v)
 
     def boolean(self, tab, key, path, default=False):
@@ -188,8 +194,8 @@ def _surface(ctx: _Ctx, raw, i: int, names: dict, arrays: dict) -> Surface:
             raise ctx.err(f"{path}.{k}", raw[k], "a paraxial (ideal) lens is a plane in one medium: "
                           "give focal_length, thickness, apertures and placement only")
         f = ctx.number(raw, "focal_length", path, allow_inf=True)
-        if f == 0:
-            raise ctx.err(f"{path}.focal_length", f, "must be nonzero (inf for no power)")
+        if abs(f) < 1.0 / MAX_ABS:
+            raise ctx.err(f"{path}.focal_length", f, f"|value| must be >= {1 / MAX_ABS:g} (inf for no power)")
         s.interaction = "paraxial"
         s.power = 0.0 if math.isinf(f) else 1.0 / f
     elif "focal_length" in raw:
@@ -199,8 +205,8 @@ def _surface(ctx: _Ctx, raw, i: int, names: dict, arrays: dict) -> Surface:
         raise ctx.err(f"{path}.curvature", raw["curvature"], "give radius or curvature, not both")
     if "radius" in raw:
         r = ctx.number(raw, "radius", path, allow_inf=True)
-        if r == 0:
-            raise ctx.err(f"{path}.radius", r, "must be nonzero (use inf for a flat surface)")
+        if abs(r) < 1.0 / MAX_ABS:  # its reciprocal, the curvature, must stay within MAX_ABS
+            raise ctx.err(f"{path}.radius", r, f"|value| must be >= {1 / MAX_ABS:g} (use inf for a flat surface)")
         s.curvature = 0.0 if math.isinf(r) else 1.0 / r
     elif "curvature" in raw:
         s.curvature = ctx.number(raw, "curvature", path)
@@ -230,6 +236,8 @@ def _surface(ctx: _Ctx, raw, i: int, names: dict, arrays: dict) -> Surface:
         if not s.xy:
             raise ctx.err(f"{path}.norm_radius", raw["norm_radius"], "only used with xy coefficients")
         s.norm_radius = ctx.number(raw, "norm_radius", path, positive=True)
+        if s.norm_radius < 1.0 / MAX_ABS:
+            raise ctx.err(f"{path}.norm_radius", s.norm_radius, f"must be >= {1 / MAX_ABS:g}")
     s.thickness = ctx.number(raw, "thickness", path, 0.0)
 
     # Interaction and media.
@@ -272,13 +280,15 @@ def _surface(ctx: _Ctx, raw, i: int, names: dict, arrays: dict) -> Surface:
     # Placement.
     s.decenter = ctx.vector(raw, "decenter", path, 2, (0.0, 0.0))
     s.tilt = ctx.vector(raw, "tilt", path, 3, (0.0, 0.0, 0.0))
+    if any(abs(t) > 360.0 for t in s.tilt):
+        raise ctx.err(f"{path}.tilt", list(s.tilt), "tilt angles are degrees within [-360, 360]")
     if s.interaction != "break":
         s.return_axis = ctx.boolean(raw, "return_axis", path, True)
     if "global_position" in raw:
         s.global_position = ctx.vector(raw, "global_position", path, 3, MISSING)
     if "same_as" in raw:
         ref = raw["same_as"]
-        if ref not in names:
+        if not isinstance(ref, str) or ref not in names:
             raise ctx.err(f"{path}.same_as", ref, "must name an earlier surface")
         j = names[ref]
         shape_keys = {"radius", "curvature", "conic", "asphere", "xy", "norm_radius", "decenter",
@@ -288,7 +298,7 @@ def _surface(ctx: _Ctx, raw, i: int, names: dict, arrays: dict) -> Surface:
             raise ctx.err(f"{path}.{k}", raw[k], "a same_as surface takes its shape and frame from the original")
         s.same_as = j
     if "array" in raw:
-        if raw["array"] not in arrays:
+        if not isinstance(raw["array"], str) or raw["array"] not in arrays:
             raise ctx.err(f"{path}.array", raw["array"],
                           f"no such lenslet array; defined: {', '.join(sorted(arrays)) or 'none'}")
         s.array = raw["array"]
@@ -308,7 +318,8 @@ def _check_reach(ctx: _Ctx, s: Surface, shape: Surface, i: int, arrays):
         key = key or "array"
     if extent is None or shape.curvature == 0.0:
         return
-    lim = 1.0 - (1.0 + shape.conic) * shape.curvature**2 * extent**2
+    ce = shape.curvature * extent  # products, not powers: huge values give inf, not OverflowError
+    lim = 1.0 - (1.0 + shape.conic) * ce * ce
     if lim < 0.0:
         reach = 1.0 / (abs(shape.curvature) * math.sqrt(1.0 + shape.conic))
         value = s.semi_diameter if key == "semi_diameter" else round(extent, 9)
@@ -418,11 +429,17 @@ def system_from_dict(data: dict, file: str = "<dict>") -> System:
     system.wavelengths_nm = [float(v) for v in wl]
     system.primary_wavelength_nm = ctx.number(sysd, "primary_wavelength_nm", "system",
                                               system.wavelengths_nm[len(wl) // 2], positive=True)
-    for i, s in enumerate(surfaces):
-        m = s.material
-        for lam in system.wavelengths_nm:
+    if not 200.0 <= system.primary_wavelength_nm <= 20000.0:
+        raise ctx.err("system.primary_wavelength_nm", system.primary_wavelength_nm, "a wavelength in nm (200..20000)")
+    lams = system.wavelengths_nm + [system.primary_wavelength_nm]
+    media = [("object.material", system.object_material)] + [(f"surfaces[{i}].material", s.material)
+                                                              for i, s in enumerate(surfaces)]
+    for key, m in media:
+        for lam in lams:
             if not m.in_range(lam):
-                raise ctx.err(f"surfaces[{i}].material", m.name,
-                              f"its dispersion data cover {m.range_nm[0]:g}-{m.range_nm[1]:g} nm, "
+                raise ctx.err(key, m.name, f"its dispersion data cover {m.range_nm[0]:g}-{m.range_nm[1]:g} nm, "
                               f"not {lam:g} nm")
+            n = m.index(lam)
+            if not (math.isfinite(n) and n > 0):
+                raise ctx.err(key, m.name, f"its index at {lam:g} nm is {n!r}: must be a finite number > 0")
     return system

@@ -89,10 +89,23 @@ class IniFirstOrder:
         return ((2 * m - self.m - 1) * self.delta_p_eic / 2, (2 * n - self.n - 1) * self.delta_p_eic / 2)
 
 
+#: Magnitudes of finite inputs (mm, diopters): outside [TINY, HUGE] the products and
+#: reciprocals of Eqs. (2)-(10) leave the float64 range (0 is allowed where it means something).
+TINY, HUGE = 1e-12, 1e15
+
+
 def _positive(name, v, allow_inf=False):
     if not isinstance(v, (int, float)) or isinstance(v, bool) or math.isnan(v) or (
             math.isinf(v) and not allow_inf) or v <= 0:
         raise IniInputError(f"{name} = {v!r}: must be a positive number")
+    _magnitude(name, v)
+
+
+def _magnitude(name, v, zero_ok=False):
+    """Finite inputs must lie within [TINY, HUGE] in magnitude (inf and nan are checked by the caller)."""
+    if math.isfinite(v) and not (TINY <= abs(v) <= HUGE or (zero_ok and v == 0)):
+        raise IniInputError(f"{name} = {v!r}: must be {'0 or ' if zero_ok else ''}within "
+                            f"{TINY:g}..{HUGE:g} in magnitude")
 
 
 def ini_first_order(p_mla: float, g: float, f_ep: float, z_xp: float, m: int, n: int, *,
@@ -111,6 +124,7 @@ def ini_first_order(p_mla: float, g: float, f_ep: float, z_xp: float, m: int, n:
     _positive("z_xp", z_xp)
     if not isinstance(f_ep, (int, float)) or not math.isfinite(f_ep) or f_ep == 0:
         raise IniInputError(f"f_ep = {f_ep!r}: must be a finite nonzero focal length")
+    _magnitude("f_ep", f_ep)
     for name, v in (("m", m), ("n", n)):
         if not isinstance(v, int) or isinstance(v, bool) or v < 1:
             raise IniInputError(f"{name} = {v!r}: must be an integer >= 1")
@@ -120,12 +134,15 @@ def ini_first_order(p_mla: float, g: float, f_ep: float, z_xp: float, m: int, n:
     if f_mla is not None:
         if not math.isfinite(f_mla) or f_mla == 0:
             raise IniInputError(f"f_mla = {f_mla!r}: must be a finite nonzero focal length")
+        _magnitude("f_mla", f_mla)
         beta = 1.0 / f_mla - 1.0 / g
     else:
         if not isinstance(l, (int, float)) or math.isnan(l) or l == 0:
             raise IniInputError(f"l = {l!r}: must be a nonzero number or inf")
+        _magnitude("l", l)
         beta = 0.0 if math.isinf(l) else 1.0 / l
-        f_mla = 1.0 / (1.0 / g + beta)
+        power = 1.0 / g + beta  # 0 at l = -g: the "lenslet" is a plate (no power)
+        f_mla = INF if power == 0 else 1.0 / power
     l_val = INF if beta == 0 else 1.0 / beta
     # Eyepiece side: d = l + z_IC.
     given = [v is not None for v in (z_ic, cdp_diopters, d_mla_ep)]
@@ -135,6 +152,7 @@ def ini_first_order(p_mla: float, g: float, f_ep: float, z_xp: float, m: int, n:
     if cdp_diopters is not None:
         if not math.isfinite(cdp_diopters) or cdp_diopters < 0:
             raise IniInputError(f"cdp_diopters = {cdp_diopters!r}: must be a finite number >= 0")
+        _magnitude("cdp_diopters", cdp_diopters, zero_ok=True)
         # Virtual CDP at a = z_CDP − z_xp in front of the eyepiece; its object: z_IC = a f/(a + f).
         if cdp_diopters == 0:
             z_ic_val = f
@@ -149,9 +167,11 @@ def ini_first_order(p_mla: float, g: float, f_ep: float, z_xp: float, m: int, n:
     elif z_ic is not None:
         if math.isinf(l_val):
             raise IniInputError("with g = f_mla the intermediate CDP is at infinity: give d_mla_ep")
+        _magnitude("z_ic", z_ic, zero_ok=True)
         z_ic_val = float(z_ic)
         d = l_val + z_ic_val
     else:
+        _magnitude("d_mla_ep", d_mla_ep, zero_ok=True)
         d = float(d_mla_ep)
         z_ic_val = d - l_val if math.isfinite(l_val) else -INF
     if not math.isfinite(d):
@@ -171,23 +191,31 @@ def ini_first_order(p_mla: float, g: float, f_ep: float, z_xp: float, m: int, n:
         z_cdp = INF if z_ic_val == f else z_xp + z_ic_val * f / (f - z_ic_val)
     # Eq. (5) and (6).
     d_v = p_mla * abs(zic_over_l * (1.0 - z_xp / f) + z_xp * beta)
-    D_v = p_ei * (d / g) * abs(1.0 - z_xp / f + z_xp / d)
+    D_v = p_ei / g * abs(d * (1.0 - z_xp / f) + z_xp)  # = p_EI (d/g)|1 − z_xp/f + z_xp/d|, finite at d = 0
     # Eq. (7) as an angle: Δθ = Δp_EI · f/((g + d)(f − z_xp) + f z_xp).
     den7 = (g + d) * (f - z_xp) + f * z_xp
     dtheta = p_ei * f / den7 if den7 != 0 else INF
-    # Eq. (8) as an angle: θ_EI = p_EI (l/(g z_IC)) (1 − z_xp/z_CDP).
+    # Eq. (8): p_EIc = p_EI (l/(g z_IC)) (z_CDP − z_xp), as an angle θ_EI = p_EIc/z_CDP. With
+    # z_CDP − z_xp = z_IC f/(f − z_IC) the factor (l/z_IC)(z_CDP − z_xp) is l f/(f − z_IC),
+    # finite where the intermediate CDP lies on the eyepiece (z_IC = 0).
     l_over_zic = 1.0 / zic_over_l if zic_over_l != 0 else INF
+    finite = math.isfinite(z_cdp)
+    if beta != 0 and z_ic_val != f:
+        lf = l_val * f / (f - z_ic_val)
+    else:  # l = inf (l/z_IC = −1) or the virtual CDP at infinity
+        lf = l_over_zic * (z_cdp - z_xp) if finite else INF
     if z_cdp == 0:  # the CDP lies on the viewing window: no finite angular size
         theta_ei = INF
+    elif finite:
+        theta_ei = abs(p_ei * lf / (g * z_cdp))
     else:
-        theta_ei = abs(p_ei * l_over_zic / g * (1.0 - (z_xp / z_cdp if math.isfinite(z_cdp) else 0.0)))
-    finite = math.isfinite(z_cdp)
+        theta_ei = abs(p_ei * l_over_zic / g)
     fov = 2.0 * math.degrees(math.atan(math.hypot(m, n) / 2.0 * abs(dtheta)))
     return IniFirstOrder(
         p_mla=p_mla, g=g, l=l_val, z_ic=z_ic_val, z_xp=z_xp, f_ep=f, z_cdp=z_cdp, m=m, n=n,
         p_ei=p_ei, z_xp_image=z_img, d_v=d_v, D_v=D_v,
-        delta_p_eic=dtheta * z_cdp if finite else INF,
-        p_eic=theta_ei * z_cdp if finite else INF,
+        delta_p_eic=dtheta * z_cdp if finite and math.isfinite(dtheta) else INF,
+        p_eic=abs(p_ei * lf / g) if finite else INF,
         delta_theta_eic_deg=math.degrees(math.atan(dtheta)) if math.isfinite(dtheta) else INF,
         theta_eic_deg=math.degrees(math.atan(theta_ei)) if math.isfinite(theta_ei) else INF,
         fov_diag_deg=fov, cdp_diopters=(1000.0 / z_cdp if finite and z_cdp != 0 else 0.0),

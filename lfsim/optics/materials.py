@@ -142,6 +142,10 @@ def lookup(spec) -> Material:
         return constant(float(spec))
     if isinstance(spec, dict):
         keys = set(spec)
+        for k in sorted(keys & {"nd", "vd", "n"}):
+            v = spec[k]
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise MaterialError(f"{k} must be a number, got {v!r}")
         if keys == {"nd", "vd"}:
             return abbe(float(spec["nd"]), float(spec["vd"]))
         if keys == {"n"}:

@@ -290,7 +290,7 @@ class IniMerit:
         """(residuals (M,), Jacobian (M, K) or None, details dict)."""
         self.evaluations += 1
         model = self.model_at(x)
-        sp, t, w = model.spec, self.spec.targets, self.spec.weights
+        t, w = self.spec.targets, self.spec.weights
         K = len(self.cols)
         subs, ref = self._references(model)
         (S, F, R), J = self._rays(model, subs, derivatives)

@@ -110,3 +110,59 @@ def paired_renders(model, layout, display: np.ndarray, eye_spec, spp: int = 16,
 def relative_rmse(img: np.ndarray, ref: np.ndarray) -> float:
     """RMSE of ``img`` against ``ref`` divided by the mean of ``ref``."""
     return float(np.sqrt(np.mean((np.asarray(img) - ref) ** 2)) / max(float(np.mean(ref)), 1e-30))
+
+
+def error_vs_time(design, content, cdp_mm: float = 750.0, resolution=(128, 74), spps=(4, 16, 64, 256),
+                  reference_spp: int = 4096, densities=(0.125, 0.25, 0.5, 1.0, 2.0), pair_spp: int = 64,
+                  pupil_mm: float = 3.0) -> dict:
+    """Render error against run time of one design: samples per pixel and mesh tessellation.
+
+    * ``spp``: the analytic display path rendered by Mitsuba at each of ``spps``
+      (seed 0) against a ``reference_spp`` render of the same path (seed 1000,
+      the converged reference): relative RMSE (:func:`relative_rmse`) and seconds.
+    * ``tessellation``: the mesh path at each density of ``densities``
+      (× :func:`lfsim.render.meshes.tessellation` defaults) against the
+      analytic path with the same eye rays (:func:`paired_renders`, common
+      random numbers at ``pair_spp``), so only the geometric error is left;
+      seconds include building and loading the meshes.
+
+    The display shows ``content``'s elemental images for the CDP at ``cdp_mm``;
+    the ideal eye (``pupil_mm``) focuses at the CDP. Returns ``{"spp": [{spp,
+    rel_rmse, seconds}], "reference_seconds", "tessellation": [{density,
+    segments, lenslet_segments, prism_segments, rel_rmse, seconds}],
+    "analytic_pair_seconds"}``.
+    """
+    from ..ini.model import model_at_depth
+    from . import display_eye
+    from .analytic import ReverseOptics
+    from .content import scene_dict
+    from .display import DisplayLayout
+    from .elemental import elemental_images
+    from .eye import EyeSpec
+    from .focal_stack import INTEGRATOR, render
+    from .meshes import tessellation
+
+    mi = mitsuba()
+    model = model_at_depth(design, 1000.0 / cdp_mm)
+    layout = DisplayLayout.from_model(model)
+    display = elemental_images(model, mi.load_dict(scene_dict(content)), layout)
+    fx, fy = model.state(0).fov_deg
+    eye = EyeSpec("ideal", pupil_mm, cdp_mm, (fx, fy), tuple(resolution))
+    key = display_eye.attach(ReverseOptics(model, 0))
+    try:
+        def analytic(spp, seed):
+            return render({"type": "scene", "display": layout.emitter_dict(display),
+                           "sensor": display_eye.sensor_dict(eye, key, spp, seed), "integrator": INTEGRATOR})
+
+        ref, t_ref = analytic(reference_spp, 1000)
+        rows_spp = []
+        for spp in spps:
+            img, secs = analytic(spp, 0)
+            rows_spp.append({"spp": int(spp), "rel_rmse": relative_rmse(img, ref), "seconds": secs})
+    finally:
+        display_eye.release(key)
+    pairs = paired_renders(model, layout, display, eye, spp=pair_spp, densities=tuple(densities))
+    base, t_an = pairs["analytic"]
+    rows_seg = [{"density": float(S), **tessellation(S), "rel_rmse": relative_rmse(pairs[S][0], base),
+                 "seconds": pairs[S][1]} for S in densities]
+    return {"spp": rows_spp, "reference_seconds": t_ref, "tessellation": rows_seg, "analytic_pair_seconds": t_an}

@@ -17,6 +17,34 @@ from dataclasses import dataclass
 import numpy as np
 
 
+def check_display_size(model, k: int, p_ei) -> None:
+    """The display (M·px × N·py pixels of ``pixel_pitch``) must hold the M × N elemental
+    images the optics lay out (pitch ``p_ei`` from Eq. 2, CDP state ``k``).
+
+    The EI pitch may differ a little from ``pixels_per_ei × pixel_pitch`` (it
+    changes with the tunable lens's power when the lens is not at a pupil), so
+    the outer EIs are cut or widened by a few pixels; more than half an EI of
+    mismatch at the display's edge, ``M·|p_EI − px·pitch| > p_EI``, means an
+    outer elemental image falls off the display (or the display holds a whole
+    EI for no lenslet): a :class:`~lfsim.design.DesignError` on
+    ``ini.pixels_per_ei``.
+    """
+    from ..design.errors import DesignError
+
+    spec, arr = model.spec, model.arr
+    have = [spec.pixels_per_ei[i] * spec.pixel_pitch for i in range(2)]
+    count = (arr.m, arr.n)
+    for i in range(2):
+        need = abs(float(p_ei[i]))
+        if not count[i] * abs(need - have[i]) <= need:
+            raise DesignError(
+                model.file, "ini.pixels_per_ei", list(spec.pixels_per_ei),
+                f"{arr.m} x {arr.n} elemental images of {abs(p_ei[0]):.5g} x {abs(p_ei[1]):.5g} mm "
+                f"(Eq. 2, CDP {model.depths[k]:g} D) need a display of {arr.m * abs(p_ei[0]):.5g} x "
+                f"{arr.n * abs(p_ei[1]):.5g} mm; {spec.pixels_per_ei[0]} x {spec.pixels_per_ei[1]} px of "
+                f"{spec.pixel_pitch:g} mm per elemental image make {arr.m * have[0]:.5g} x {arr.n * have[1]:.5g} mm")
+
+
 @dataclass
 class DisplayLayout:
     """Pixel grid and elemental-image layout of one CDP state (lengths mm)."""
@@ -37,6 +65,7 @@ class DisplayLayout:
         spec, arr = model.spec, model.arr
         c = model.ei_centers(k, np.array([0, 1, 0]), np.array([0, 0, 1]))
         basis = np.stack([c[1] - c[0], c[2] - c[0]], axis=1)
+        check_display_size(model, k, (basis[0, 0], basis[1, 1]))
         return cls(width=int(arr.m * spec.pixels_per_ei[0]), height=int(arr.n * spec.pixels_per_ei[1]),
                    pixel_pitch=float(spec.pixel_pitch), center=(float(arr.center[0]), float(arr.center[1])),
                    z=-float(model.g), m=int(arr.m), n=int(arr.n), ei_origin=c[0], ei_basis=basis)

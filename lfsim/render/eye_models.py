@@ -441,7 +441,7 @@ def axial_rms_spot(accommodation: float, distance_mm: float, pupil_diameter_mm: 
 
 @lru_cache(maxsize=512)
 def solve_accommodation(distance_mm: float, pupil_diameter_mm: float, wavelength_nm: float = 550.0,
-                        criterion: str = "rms") -> float:
+                        criterion: str = "rms", xatol: float = 1e-5, n_rings: int = 24) -> float:
     """Arizona-eye accommodation A (D) that focuses best at ``distance_mm``.
 
     Parameters
@@ -459,6 +459,12 @@ def solve_accommodation(distance_mm: float, pupil_diameter_mm: float, wavelength
         ``scipy.optimize.minimize_scalar`` (bounded, ±1.5 D around the
         paraxial answer). "paraxial": the paraxial far point is at the
         distance (:func:`paraxial_accommodation`).
+    xatol : float
+        Tolerance (D) of the bounded scalar minimization ("rms").
+    n_rings : int
+        Gauss–Legendre nodes in h² of :func:`axial_rms_spot` ("rms").
+        Error against run time of both: ``lfsim report accuracy``
+        (docs/accuracy.md).
 
     Notes
     -----
@@ -486,6 +492,6 @@ def solve_accommodation(distance_mm: float, pupil_diameter_mm: float, wavelength
     if criterion == "paraxial":
         return A0
     lo, hi = max(A_RANGE[0], A0 - 1.5), min(A_RANGE[1], A0 + 1.5)
-    res = minimize_scalar(lambda A: axial_rms_spot(A, d, pupil, wavelength_nm), bounds=(lo, hi),
-                          method="bounded", options={"xatol": 1e-5})
+    res = minimize_scalar(lambda A: axial_rms_spot(A, d, pupil, wavelength_nm, n_rings), bounds=(lo, hi),
+                          method="bounded", options={"xatol": float(xatol)})
     return float(res.x)

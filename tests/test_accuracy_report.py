@@ -1,0 +1,43 @@
+"""`lfsim report accuracy --quick`: a table row and a plot per knob, figures measured, files atomic."""
+
+import json
+import re
+
+import numpy as np
+
+from lfsim.cli import main
+
+KNOBS = ["tracer_precision", "newton_tol", "newton_max_iter", "pupil", "mtf_grid", "fields", "stride", "spp",
+         "tessellation", "accommodation"]
+
+
+def test_quick_report_has_a_row_and_a_plot_per_knob(tmp_path, capsys):
+    out = tmp_path / "docs"
+    assert main(["report", "accuracy", "--quick", "--out", str(out), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert [k["key"] for k in doc["knobs"]] == KNOBS
+    md = (out / "accuracy.md").read_text()
+    summary = md.split("## Summary", 1)[1].split("\n## ", 1)[0]
+    for k in doc["knobs"]:
+        # One summary row per knob, linking to its section, and a section with a table and a plot.
+        assert len(re.findall(rf"^\| {k['stage']} \| \[[^]]+\]\(#{k['key']}\) \|", summary, re.M)) == 1, k["key"]
+        assert f'<a id="{k["key"]}"></a>' in md and f"](img/accuracy_{k['key']}.png)" in md
+        png = out / "img" / f"accuracy_{k['key']}.png"
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
+        # Every row: a setting, finite errors (or none where every ray failed), a positive time.
+        assert k["rows"], k["key"]
+        for r in k["rows"]:
+            assert r["seconds"] > 0 and all(e is None or (np.isfinite(e) and e >= 0) for e in r["errors"])
+        assert any(r["setting"] == k["default"] for r in k["rows"]), k["key"]  # the default is measured
+    assert "**Default and why.**" in md and md.count("**Default and why.**") == len(KNOBS)
+    assert not list(out.rglob(".*"))  # no temporary files left behind
+    by = {k["key"]: k for k in doc["knobs"]}
+    # Physics the figures must show: float32 is farther from the reference than float64 …
+    prec = {r["setting"]: r["errors"][0] for r in by["tracer_precision"]["rows"]}
+    assert prec["float32"] > 1e3 * prec["float64"]
+    # … one Newton iteration cannot converge (every ray flagged), the default can …
+    cap = {r["setting"]: r["errors"][1] for r in by["newton_max_iter"]["rows"]}
+    assert cap["1"] == 1.0 and cap["16"] == 0.0
+    # … and Monte Carlo noise falls with the samples per pixel.
+    spp = [r["errors"][0] for r in by["spp"]["rows"]]
+    assert spp == sorted(spp, reverse=True)
