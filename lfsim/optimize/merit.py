@@ -128,7 +128,7 @@ class IniMerit:
         self.sl_marg = slice(1, 5)
         self.sl_gl = slice(5, 5 + len(gl))
         self.evaluations = 0
-        self._cache = None
+        self._model = None  # (x bytes, IniModel) of the last design built
 
     # ------------------------------------------------------------ designs
     @property
@@ -153,7 +153,13 @@ class IniMerit:
         return d
 
     def model_at(self, x) -> IniModel:
-        return IniModel(self.design_at(x))
+        """The InI model at ``x``; the last one is kept, since a damped least-squares
+        step evaluates the residuals at a trial point and then, once accepted, the
+        Jacobian at the same point."""
+        key = np.asarray(x, dtype=np.float64).tobytes()
+        if self._model is None or self._model[0] != key:
+            self._model = (key, IniModel(self.design_at(x)))
+        return self._model[1]
 
     # ------------------------------------------------------------ pieces
     def _subs(self, model: IniModel):
