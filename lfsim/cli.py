@@ -25,6 +25,20 @@ class InputError(Exception):
     """Bad command-line input (already formatted as one line)."""
 
 
+def _load_design(args, path=None):
+    """The verb's design, with its ``--set KEY=VALUE`` overrides applied (lfsim.design.overrides)."""
+    from .design.overrides import load_with_overrides, parse_sets
+
+    return load_with_overrides(path or args.design, parse_sets(getattr(args, "set", None)))
+
+
+def _add_set(parser) -> None:
+    parser.add_argument("--set", action="append", metavar="KEY=VALUE",
+                        help="override a design number before the run (repeatable): a parameter name "
+                             "such as MLA.curvature, S3.x2y2, TL.power, mla.pitch_x, or a dotted path "
+                             "such as surfaces[2].thickness")
+
+
 def _json_default(o):
     if isinstance(o, (np.integer,)):
         return int(o)
@@ -78,7 +92,7 @@ def read_rays_csv(path: str) -> tuple[np.ndarray, np.ndarray]:
 def cmd_trace(args) -> int:
     from .optics.tracer import Status
 
-    design = load(args.design)
+    design = _load_design(args)
     o, d = read_rays_csv(args.rays)
     r = design.trace(o, d, wavelength_nm=args.wavelength_nm, precision=args.precision)
     arrays = bool(design.system.arrays)  # lenslet (m, n) columns only where there is an array
@@ -111,7 +125,7 @@ def cmd_trace(args) -> int:
 
 
 def cmd_first_order(args) -> int:
-    design = load(args.design)
+    design = _load_design(args)
     fo = design.first_order(args.wavelength_nm, method=args.method)
     d = fo.as_dict()
     if args.json:
@@ -128,7 +142,7 @@ def cmd_first_order(args) -> int:
 def cmd_layout(args) -> int:
     from .analysis.layout import layout_report
 
-    design = load(args.design)
+    design = _load_design(args)
     summary = layout_report(design, args.out)
     if args.json:
         print(_dump(summary))
@@ -142,10 +156,22 @@ def cmd_layout(args) -> int:
     return 0
 
 
+def cmd_params(args) -> int:
+    design = _load_design(args)
+    rows = [{"name": n, "value": float(v), "unit": u} for n, v, u in design.system.parameter_table()]
+    if args.json:  # JSON has no NaN/inf: a number that is not set (an object-space index) is null
+        rows = [{**r, "value": r["value"] if math.isfinite(r["value"]) else None} for r in rows]
+        print(_dump({"design": design.name, "file": args.design, "params": rows}))
+        return 0
+    for r in rows:
+        print(f"{r['name']:28s} {r['value']: .12g} {r['unit']}")
+    return 0
+
+
 def cmd_ini_design(args) -> int:
     from .ini.model import IniModel
 
-    model = IniModel(load(args.design))
+    model = IniModel(_load_design(args))
     states = [model.state(k).as_dict() for k in range(len(model.depths))]
     doc = {"design": model.design.name, "file": args.design, "p_mla": list(model.arr.pitch),
            "g": model.g, "m": model.arr.m, "n": model.arr.n, "states": states}
@@ -222,7 +248,7 @@ def _float_list(text, flag):
 def cmd_analyze(args) -> int:
     from .analysis.ini_analysis import analyze
 
-    design = load(args.design)
+    design = _load_design(args)
     if design.ini is None:
         raise InputError(f"{args.design}: ini = missing: lfsim analyze needs an [ini] section")
     stride = _int_pair(args.stride, "--stride") if args.stride else None
@@ -262,7 +288,7 @@ def cmd_optimize(args) -> int:
     from .fileio import write_json
     from .optimize.workflow import compare, optimize
 
-    design = load(args.design)
+    design = _load_design(args)
     if design.ini is None:
         raise InputError(f"{args.design}: ini = missing: lfsim optimize needs an [ini] section")
     if design.optimize is None or not design.optimize.variables:
@@ -319,7 +345,7 @@ def cmd_focal_stack(args) -> int:
     design_path = args.design or view.get("design")
     if design_path is None:
         raise InputError(f"{args.content}: view.design = missing: give a DESIGN argument")
-    design = load(design_path)
+    design = _load_design(args, design_path)
     if design.ini is None:
         raise InputError(f"{design_path}: ini = missing: lfsim focal-stack needs an [ini] section")
     focus = _float_list(args.focus_mm, "--focus-mm") if args.focus_mm else view.get("focus_mm", [600.0, 1000.0, 1400.0])
@@ -404,6 +430,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--wavelength-nm", type=float, default=None)
     t.add_argument("--precision", choices=("float64", "float32"), default="float64")
     t.add_argument("--out", help="write the CSV here (atomically) instead of stdout")
+    _add_set(t)
     t.add_argument("--json", action="store_true")
     t.set_defaults(func=cmd_trace)
 
@@ -411,8 +438,15 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("design")
     f.add_argument("--wavelength-nm", type=float, default=None)
     f.add_argument("--method", choices=("auto", "paraxial", "parabasal"), default="auto")
+    _add_set(f)
     f.add_argument("--json", action="store_true")
     f.set_defaults(func=cmd_first_order)
+
+    pa = sub.add_parser("params", help="every design number by name (the names --set and [optimize] take)")
+    pa.add_argument("design")
+    _add_set(pa)
+    pa.add_argument("--json", action="store_true")
+    pa.set_defaults(func=cmd_params)
 
     ini = sub.add_parser("ini", help="InI-HMD first-order model (Eqs. 1-10) of a design or explicit inputs")
     ini.add_argument("design", nargs="?", help="design file with an [ini] section")
@@ -428,6 +462,7 @@ def build_parser() -> argparse.ArgumentParser:
     ini.add_argument("--f-ep", type=float, help="eyepiece focal length (mm)")
     ini.add_argument("--m", type=int, help="lenslets along x")
     ini.add_argument("--n", type=int, help="lenslets along y")
+    _add_set(ini)
     ini.add_argument("--json", action="store_true")
     ini.set_defaults(func=cmd_ini)
 
@@ -439,12 +474,14 @@ def build_parser() -> argparse.ArgumentParser:
     an.add_argument("--depths", help="CDP depths to evaluate, diopters, comma separated (default all)")
     an.add_argument("--reference", help="nominal design: GD and PA against its display layout and paraxial rays")
     an.add_argument("--no-plots", action="store_true")
+    _add_set(an)
     an.add_argument("--json", action="store_true")
     an.set_defaults(func=cmd_analyze)
 
     lay = sub.add_parser("layout", help="layout and spot-diagram pictures plus a summary")
     lay.add_argument("design")
     lay.add_argument("--out", required=True, help="output directory")
+    _add_set(lay)
     lay.add_argument("--json", action="store_true")
     lay.set_defaults(func=cmd_layout)
 
@@ -457,6 +494,7 @@ def build_parser() -> argparse.ArgumentParser:
     op.add_argument("--resume", action="store_true", help="continue from the checkpoints in --out")
     op.add_argument("--no-analyze", action="store_true", help="skip the before/after `analyze` runs")
     op.add_argument("--analyze-stride", default="1,1", help="lenslet stride of the before/after analysis (1,1)")
+    _add_set(op)
     op.add_argument("--json", action="store_true")
     op.set_defaults(func=cmd_optimize)
 
@@ -480,6 +518,7 @@ def build_parser() -> argparse.ArgumentParser:
     fs.add_argument("--tessellation", type=float, default=1.0,
                     help="mesh density as a multiple of the defaults (--optics mesh; default 1)")
     fs.add_argument("--out", default="renders/focal_stack", help="output directory (default renders/focal_stack)")
+    _add_set(fs)
     fs.add_argument("--json", action="store_true")
     fs.set_defaults(func=cmd_focal_stack)
 

@@ -1,0 +1,72 @@
+"""``--set KEY=VALUE`` overrides: parameter names, dotted paths, errors, and the CLI verbs."""
+
+import json
+
+import numpy as np
+import pytest
+
+import lfsim
+from lfsim.cli import main
+from lfsim.design import DesignError
+from lfsim.design.overrides import apply_overrides, load_with_overrides, parse_sets
+
+
+def test_parameter_name_writes_the_files_own_words(scenes):
+    path = scenes / "cooke_triplet.toml"
+    base = lfsim.load(path)
+    c0 = dict((n, v) for n, v, _ in base.system.parameter_table())["L1_front.curvature"]
+    d = load_with_overrides(path, {"L1_front.curvature": c0 * 1.01, "L1_front.thickness": 1.25})
+    table = {n: v for n, v, _ in d.system.parameter_table()}
+    assert table["L1_front.curvature"] == pytest.approx(c0 * 1.01, rel=1e-15)
+    assert table["L1_front.thickness"] == 1.25
+    assert d.raw["surfaces"][0]["radius"] == pytest.approx(1 / (c0 * 1.01), rel=1e-15)
+    # the first-order focal length moves: the override reaches the traced system
+    assert d.first_order().efl != pytest.approx(base.first_order().efl, rel=1e-6)
+    # the file's own table is untouched
+    assert lfsim.load(path).raw == base.raw
+
+
+def test_dotted_path_and_integer_kept(scenes):
+    raw = lfsim.load(scenes / "ini_ideal.toml").raw
+    out = apply_overrides(raw, {"ini.cdp_diopters[1]": 1.5})
+    assert out["ini"]["cdp_diopters"][1] == 1.5 and raw["ini"]["cdp_diopters"][1] != 1.5
+    if isinstance(raw["ini"].get("analysis", {}).get("fields"), int):
+        out = apply_overrides(raw, {"ini.analysis.fields": 5.0})
+        assert out["ini"]["analysis"]["fields"] == 5 and isinstance(out["ini"]["analysis"]["fields"], int)
+
+
+@pytest.mark.parametrize("items, fragment", [
+    (["L1_front.curvature"], "expected KEY=VALUE"),
+    (["L1_front.curvature=abc"], "not a number"),
+    (["L1_front.curvature=nan"], "not a number"),
+    (["a=1", "a=2"], "given twice"),
+])
+def test_parse_errors(items, fragment):
+    with pytest.raises(ValueError, match=fragment):
+        parse_sets(items)
+
+
+def test_unknown_key_names_file_key_value_and_close_matches(scenes):
+    path = scenes / "cooke_triplet.toml"
+    with pytest.raises(DesignError) as e:
+        load_with_overrides(path, {"L1_front.curvatur": 0.05})
+    msg = str(e.value)
+    assert str(path) in msg and "L1_front.curvatur = 0.05" in msg and "L1_front.curvature" in msg
+    assert "\n" not in msg
+    with pytest.raises(DesignError, match="semi_diameter"):
+        load_with_overrides(path, {"surfaces[0].semi_diameter": -5.0})
+
+
+def test_cli_verbs_take_set(scenes, tmp_path, capsys):
+    design = str(scenes / "cooke_triplet.toml")
+    assert main(["params", design, "--set", "L1_front.thickness=1.25", "--json"]) == 0
+    rows = {r["name"]: r["value"] for r in json.loads(capsys.readouterr().out)["params"]}
+    assert rows["L1_front.thickness"] == 1.25
+    assert main(["first-order", design, "--json"]) == 0
+    efl0 = json.loads(capsys.readouterr().out)["efl"]
+    assert main(["first-order", design, "--set", "L1_front.thickness=1.25", "--json"]) == 0
+    efl1 = json.loads(capsys.readouterr().out)["efl"]
+    assert np.isfinite(efl1) and efl1 != efl0
+    assert main(["first-order", design, "--set", "nope=1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "nope = 1.0" in err and design in err
