@@ -70,3 +70,15 @@ def test_cli_verbs_take_set(scenes, tmp_path, capsys):
     assert main(["first-order", design, "--set", "nope=1"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "nope = 1.0" in err and design in err
+
+
+def test_missing_key_created_under_an_existing_table_then_validated(scenes):
+    raw = lfsim.load(scenes / "ini_freeform.toml").raw
+    out = apply_overrides(raw, {"ini.analysis.fields": 9})
+    assert out["ini"]["analysis"]["fields"] == 9 and raw["ini"].get("analysis", {}).get("fields") != 9
+    d = load_with_overrides(scenes / "ini_freeform.toml", {"ini.analysis.fields": 9})
+    assert d.ini.fields == 9
+    with pytest.raises(DesignError, match="fieldz"):
+        load_with_overrides(scenes / "ini_freeform.toml", {"ini.analysis.fieldz": 9})
+    with pytest.raises(DesignError, match="nosuch.analysis.fields = 9: a parameter name"):
+        load_with_overrides(scenes / "ini_freeform.toml", {"nosuch.analysis.fields": 9})

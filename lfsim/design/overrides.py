@@ -75,20 +75,36 @@ def _path_parts(key: str) -> list[str | int]:
 
 
 def _set_path(raw: dict, key: str, value: float) -> bool:
-    """Set an existing number at dotted ``key`` in ``raw``; False when there is none."""
+    """Set the number at dotted ``key`` in ``raw``; False when the path does not fit the file.
+
+    An existing number is replaced (an integer stays an integer when the value
+    is whole). A missing key is created, with any missing tables on its way,
+    only under a top-level table the file already has (``ini.analysis.fields``
+    in a file with ``[ini]``); the design's validation then refuses keys it
+    does not know.
+    """
+    value = float(value)
     try:
         parts = _path_parts(key)
     except KeyError:
         return False
+    if len(parts) < 2 or not isinstance(raw.get(parts[0]), dict):
+        return False
     node = raw
-    for p in parts[:-1]:
+    for i, p in enumerate(parts[:-1]):
+        nxt = parts[i + 1]
+        if isinstance(node, dict) and p not in node and isinstance(p, str) and isinstance(nxt, str):
+            node[p] = {}
         try:
             node = node[p]
         except (KeyError, IndexError, TypeError):
             return False
-        if isinstance(node, (str, bytes)):
+        if not isinstance(node, (dict, list)):
             return False
     last = parts[-1]
+    if isinstance(node, dict) and isinstance(last, str) and last not in node:
+        node[last] = int(value) if value.is_integer() else value
+        return True
     try:
         old = node[last]
     except (KeyError, IndexError, TypeError):
