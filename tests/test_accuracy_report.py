@@ -7,7 +7,7 @@ import numpy as np
 
 from lfsim.cli import main
 
-KNOBS = ["tracer_precision", "newton_tol", "newton_max_iter", "pupil", "mtf_grid", "fields", "stride", "spp",
+KNOBS = ["tracer_precision", "newton_tol", "newton_max_iter", "pupil", "mtf_grid", "fields", "refine", "stride", "spp",
          "tessellation", "accommodation"]
 
 

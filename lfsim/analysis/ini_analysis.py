@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..ini.model import IniModel
-from ..ini.subsystems import Bundle, sample, trace
+from ..ini.subsystems import Bundle, Subsystems, display_points, sample, trace
 from ..metrics import distortion, footprint, mtf, pupil, spot
 
 CPD_TO_CPR = 180.0 / math.pi
@@ -65,7 +65,7 @@ def _paraxial(model: IniModel, subs, rho: np.ndarray) -> np.ndarray:
 
 
 def evaluate(model: IniModel, subs=None, progress: bool = False, mtf_freqs_cpd=None,
-             reference: IniModel | None = None) -> dict:
+             reference: IniModel | None = None, refine: int | None = None) -> dict:
     """Trace and measure; returns a dict of numpy arrays and the summary (see :func:`analyze`).
 
     ``reference``: the nominal design's model. By default a design is its own
@@ -76,6 +76,9 @@ def evaluate(model: IniModel, subs=None, progress: bool = False, mtf_freqs_cpd=N
     GD (Eq. 11) and PA (Eq. 12) and the footprint width d_v are the nominal
     design's, as in a tolerance analysis of built hardware that shows the
     nominal elemental images. The CDP depths of both must match.
+
+    ``refine``: levels of the worst-contrast search of :func:`refine_contrast`
+    (default the design's ``[ini.analysis] refine``; 0: the field grid only).
     """
     spec = model.spec
     ref = model if reference is None else reference
@@ -123,23 +126,90 @@ def evaluate(model: IniModel, subs=None, progress: bool = False, mtf_freqs_cpd=N
     rms, cen, off = spot.rms_spot(r[:, :, sl["gl2"]], sets.weights["gl2"], ok[:, :, sl["gl2"]])
     rms_n, _, _ = spot.rms_spot(r[:, :, sl["gl"]], sets.weights["gl"], ok[:, :, sl["gl"]])
     geo = mtf.geometric_mtf(off, sets.weights["gl2"], ok[:, :, sl["gl2"]], freqs_cpd * CPD_TO_CPR)
-    # Diffraction MTF from the optical path over the stop grid.
+    opd, dif = _diffraction(model, bundle, sets, r, cen, D, freqs_cpd)
+    contrast = np.min(dif[..., i_nyq, :], axis=-1)
     g = sl["mtf"]
+    wf_rms = np.sqrt(np.sum(np.where(ok[:, :, g], opd, 0) ** 2, axis=-1)
+                     / np.maximum(np.sum(ok[:, :, g], axis=-1), 1)) / (model.lam * 1e-6)
+    vignetted = 1.0 - np.mean(ok[:, :, sl["gl2"]], axis=-1)
+    res = dict(model=model, subs=subs, sets=sets, bundle=bundle, states=states, r=r, r_par=r_par,
+               par=par, gd=gd, local=local, pa=pa, pa_ok=marg_ok, chief_ok=chief_ok, rms=rms, rms_n=rms_n,
+               geo=geo, dif=dif, contrast=contrast, wf_rms=wf_rms, vignetted=vignetted,
+               freqs_cpd=freqs_cpd, nyquist_cpd=nyq, i_nyq=i_nyq, t_trace=t_trace)
+    levels = spec.refine if refine is None else int(refine)
+    res["refined"] = refine_contrast(model, res, levels, ref) if levels > 0 else None
+    res["t_all"] = time.perf_counter() - t0
+    return res
+
+
+def _diffraction(model: IniModel, bundle: Bundle, sets: PupilSets, r, cen, D, freqs_cpd):
+    """Wavefront (mm) over the stop's FFT grid and the diffraction MTF at ``freqs_cpd`` (…, freq, orientation)."""
+    ok, g = bundle.ok, sets.slices["mtf"]
     opd, pup, _ = mtf.reference_opd(bundle.pos[:, :, g], bundle.dir[:, :, g], bundle.opl[:, :, g],
                                     ok[:, :, g], cen, D[:, None])
     if opd_method(model) == "slopes":
         off_g = spot.angular_offsets(r[:, :, g], cen)
         opd = mtf.wavefront_from_slopes(sets.rho[g], pup, off_g, ok[:, :, g])
-    dif = mtf.diffraction_mtf(sets.rho[g], pup, opd, ok[:, :, g], model.lam, freqs_cpd * CPD_TO_CPR)
-    contrast = np.min(dif[..., i_nyq, :], axis=-1)
-    wf_rms = np.sqrt(np.sum(np.where(ok[:, :, g], opd, 0) ** 2, axis=-1)
-                     / np.maximum(np.sum(ok[:, :, g], axis=-1), 1)) / (model.lam * 1e-6)
-    vignetted = 1.0 - np.mean(ok[:, :, sl["gl2"]], axis=-1)
-    t_all = time.perf_counter() - t0
-    return dict(model=model, subs=subs, sets=sets, bundle=bundle, states=states, r=r, r_par=r_par,
-                par=par, gd=gd, local=local, pa=pa, pa_ok=marg_ok, chief_ok=chief_ok, rms=rms, rms_n=rms_n,
-                geo=geo, dif=dif, contrast=contrast, wf_rms=wf_rms, vignetted=vignetted,
-                freqs_cpd=freqs_cpd, nyquist_cpd=nyq, i_nyq=i_nyq, t_trace=t_trace, t_all=t_all)
+    dif = mtf.diffraction_mtf(sets.rho[g], pup, opd, ok[:, :, g], model.lam,
+                              np.asarray(freqs_cpd, dtype=np.float64) * CPD_TO_CPR)
+    return opd, dif
+
+
+#: The eight neighbours of a field point, in units of the search step.
+_NEIGHBOURS = np.array([(-1, -1), (0, -1), (1, -1), (-1, 0), (1, 0), (-1, 1), (0, 1), (1, 1)], dtype=np.float64)
+
+
+def refine_contrast(model: IniModel, res: dict, levels: int, reference: IniModel | None = None) -> dict:
+    """Each EI's worst contrast at Nyquist, searched around its worst grid field.
+
+    The field grid (``fields`` per axis) brackets the worst field of an
+    elemental image; the minimum itself usually lies between grid points,
+    where the prism's field-dependent astigmatism peaks. Starting at the
+    grid's worst field, each level traces the 8 neighbours at half the
+    previous step (the first step is half the grid spacing), clipped to the
+    EI, and moves to the worst of them: after L levels the worst field is
+    located to 1/2^L of the grid spacing. One fused trace per level,
+    8 fields per sub-system.
+
+    Returns
+    -------
+    dict
+        ``contrast_min`` (S,) the smallest contrast found (≤ the grid's),
+        ``field`` (S, 2) where (field fractions), ``levels``,
+        ``fields_traced`` (extra fields per sub-system), ``seconds``.
+    """
+    ref = model if reference is None else reference
+    subs, sets, spec = res["subs"], res["sets"], model.spec
+    t0 = time.perf_counter()
+    c = np.where(np.isfinite(res["contrast"]), res["contrast"], np.inf)
+    j = np.argmin(c, axis=1)
+    best = c[np.arange(len(subs)), j]
+    u = subs.fields[j].copy()
+    F = subs.fields.shape[0]
+    nf = spec.fields if spec.fields ** 2 == F else max(int(round(F ** 0.5)), 1)
+    frac = spec.field_fraction
+    step = frac / (nf - 1) if nf > 1 else 0.5 * frac
+    D = np.array(model.depths)[subs.k]
+    nyq = np.array([res["nyquist_cpd"]])
+    for _ in range(levels):
+        cand = np.clip(u[:, None, :] + step * _NEIGHBOURS[None], -frac, frac)  # (S, 8, 2)
+        rsubs = Subsystems(subs.m, subs.n, subs.k, cand, subs.center,
+                           display_points(ref, subs.m, subs.n, subs.k, cand))
+        bundle = trace(model, rsubs, sets.rho)
+        r = spot.retinal_tan(bundle.pos, bundle.slopes(), D[:, None, None])
+        gl2 = sets.slices["gl2"]
+        _, cen, _ = spot.rms_spot(r[:, :, gl2], sets.weights["gl2"], bundle.ok[:, :, gl2])
+        _, dif = _diffraction(model, bundle, sets, r, cen, D, nyq)
+        cc = np.min(dif[..., 0, :], axis=-1)
+        cc = np.where(np.isfinite(cc), cc, np.inf)
+        jj = np.argmin(cc, axis=1)
+        cmin = cc[np.arange(len(subs)), jj]
+        better = cmin < best
+        best = np.where(better, cmin, best)
+        u[better] = cand[better, jj[better]]
+        step *= 0.5
+    return {"contrast_min": best, "field": u, "levels": int(levels), "fields_traced": 8 * int(levels),
+            "seconds": time.perf_counter() - t0}
 
 
 def _f(v) -> float | None:
@@ -151,6 +221,13 @@ def _masked(fn, values, valid):
     """``fn`` over the valid entries; None when there are none (a failed ray has no metric)."""
     v = np.asarray(values)[np.asarray(valid)]
     return _f(fn(v)) if v.size else None
+
+
+def contrast_min(res: dict) -> np.ndarray:
+    """(S,) each sub-system's worst contrast at Nyquist: the refined search's when it ran, else the grid's."""
+    grid = np.min(res["contrast"], axis=1)
+    refined = res.get("refined")
+    return grid if refined is None else np.minimum(grid, refined["contrast_min"])
 
 
 def summarize(res: dict) -> dict:
@@ -165,6 +242,8 @@ def summarize(res: dict) -> dict:
     pa_ok, gd_ok = res["pa_ok"], res["chief_ok"][:, 0]
     pa_sub = np.max(np.where(pa_ok, res["pa"], -np.inf), axis=1)
     sub_ok = np.any(pa_ok, axis=1)
+    c_min = contrast_min(res)
+    refined = res.get("refined")
     subsystems = []
     for i in range(len(subs)):
         k = int(subs.k[i])
@@ -173,8 +252,9 @@ def summarize(res: dict) -> dict:
             "gd_deg": _f(res["gd"][i]) if gd_ok[i] else None,
             "pa_max": _f(pa_sub[i]) if sub_ok[i] else None,
             "pa_mean": _masked(np.mean, res["pa"][i], pa_ok[i]),
-            "contrast_nyquist": _f(np.min(res["contrast"][i])),
+            "contrast_nyquist": _f(c_min[i]),
             "contrast_nyquist_fields": [_f(v) for v in res["contrast"][i]],
+            "contrast_nyquist_worst_field": [_f(v) for v in refined["field"][i]] if refined else None,
             "rms_spot_arcmin": [_f(v * arcmin) for v in res["rms"][i]],
             "local_distortion_pct_max": _f(100 * np.max(res["local"][i])),
             "wavefront_rms_waves": [_f(v) for v in res["wf_rms"][i]],
@@ -189,7 +269,7 @@ def summarize(res: dict) -> dict:
             continue
         c = res["contrast"][sel]
         by_depth[f"{D:g}"] = {
-            "contrast_nyquist_min": _f(np.min(c)), "contrast_nyquist_mean": _f(np.mean(c)),
+            "contrast_nyquist_min": _f(np.min(c_min[sel])), "contrast_nyquist_mean": _f(np.mean(c)),
             "rms_spot_mean_arcmin": _f(np.mean(res["rms"][sel]) * arcmin),
             "rms_spot_max_arcmin": _f(np.max(res["rms"][sel]) * arcmin),
             "gd_max_deg": _masked(np.max, res["gd"][sel], gd_ok[sel]),
@@ -209,7 +289,10 @@ def summarize(res: dict) -> dict:
         "subsystems_evaluated": len(subs),
         "lenslets_evaluated": len({(int(a), int(b)) for a, b in zip(subs.m, subs.n)}),
         "fields_per_subsystem": int(subs.fields.shape[0]), "nyquist_cpd": _f(res["nyquist_cpd"]),
-        "contrast_nyquist_min": _f(np.min(res["contrast"])), "contrast_nyquist_mean": _f(np.mean(res["contrast"])),
+        "contrast_nyquist_min": _f(np.min(c_min)), "contrast_nyquist_mean": _f(np.mean(res["contrast"])),
+        "contrast_nyquist_min_grid": _f(np.min(res["contrast"])),
+        "contrast_refine_levels": refined["levels"] if refined else 0,
+        "contrast_refine_s": round(refined["seconds"], 3) if refined else 0.0,
         "rms_spot_mean_arcmin": _f(np.mean(res["rms"]) * arcmin),
         "local_distortion_pct_max": _f(100 * np.max(res["local"])),
         "rays_failed": int(np.sum(~res["bundle"].ok[:, :, res["sets"].slices["gl2"]])),

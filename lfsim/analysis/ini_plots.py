@@ -63,8 +63,12 @@ def contrast_map(res, path, k=None):
     ax.set_xlabel("horizontal visual angle (deg)")
     ax.set_ylabel("vertical visual angle (deg)")
     ax.set_aspect("equal")
+    from .ini_analysis import contrast_min
+
+    worst = float(np.min(contrast_min(res)[sel]))
+    found = f" (worst {worst:.3f}, searched between fields)" if res.get("refined") else ""
     ax.set_title(f"{model.design.name}\ncontrast at Nyquist, CDP {model.depths[k]:g} D: "
-                 f"min {np.min(c):.3f}, mean {np.mean(c):.3f} over {c.size} fields", fontsize=9)
+                 f"min {np.min(c):.3f}, mean {np.mean(c):.3f} over {c.size} fields{found}", fontsize=9)
     save_figure(fig, path, bbox_inches="tight")
     plt.close(fig)
 

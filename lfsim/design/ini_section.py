@@ -24,6 +24,8 @@ Schema (units mm, diopters)::
     [ini.analysis]                  # sampling of `lfsim analyze` (all optional)
     fields = 3                      # field points per EI axis (3 → 9 fields)
     field_fraction = 1.0            # outer fields at this fraction of the edge pixel
+    refine = 2                      # levels of the search for each EI's worst contrast
+                                    # around its worst grid field (0: the grid only)
     stride = [1, 1]                 # evaluate every k-th lenslet along x, y
     symmetry = "none"               # "x": mirror-symmetric in x (about the y-z plane)
                                     # → only lenslets with x >= 0; "y", "xy" likewise
@@ -68,6 +70,7 @@ class IniSpec:
     eye_model: str = "ideal"
     pupil_diameter: float = 4.0
     fields: int = 3
+    refine: int = 2
     field_fraction: float = 1.0
     stride: tuple[int, int] = (1, 1)
     symmetry: str = "none"
@@ -175,12 +178,16 @@ def parse_ini(ctx, data: dict, system: System) -> IniSpec | None:
     spec.pupil_diameter = ctx.number(eye, "pupil_diameter", "ini.eye", 4.0, positive=True)
 
     an = ctx.table(tab, "analysis", "ini", {})
-    ctx.no_unknown(an, {"fields", "field_fraction", "stride", "symmetry", "pupil", "mtf_grid",
+    ctx.no_unknown(an, {"fields", "refine", "field_fraction", "stride", "symmetry", "pupil", "mtf_grid",
                         "pa_target", "gd_target_deg"}, "ini.analysis")
     if "fields" in an:
         spec.fields = ctx.integer(an, "fields", "ini.analysis", 1)
         if spec.fields % 2 == 0:
             raise ctx.err("ini.analysis.fields", spec.fields, "must be odd (the EI centre is a field)")
+    if "refine" in an:
+        spec.refine = ctx.integer(an, "refine", "ini.analysis", 0)
+        if spec.refine > 12:
+            raise ctx.err("ini.analysis.refine", spec.refine, "must be in 0..12 (level L halves the step L times)")
     spec.field_fraction = ctx.number(an, "field_fraction", "ini.analysis", 1.0, positive=True)
     if spec.field_fraction > 1:
         raise ctx.err("ini.analysis.field_fraction", spec.field_fraction, "must be in (0, 1]")

@@ -91,15 +91,29 @@ def sample(model: IniModel, stride=None, symmetry=None, depths=None, lenslets=No
     n = np.tile(lenslets[:, 1], len(depths))
     k = np.repeat(np.array(depths, dtype=np.int64), len(lenslets))
     center = model.lenslet_center(m, n)
-    display = np.empty((len(m), len(fields), 2))
-    ppe = np.array(spec.pixels_per_ei, dtype=np.float64)
+    display = display_points(model, m, n, k, fields)
+    return Subsystems(m, n, k, fields, center, display)
+
+
+def display_points(model: IniModel, m, n, k, fields) -> np.ndarray:
+    """Display points (mm) of field fractions in the elemental images of lenslets (m, n) at CDP states k.
+
+    ``fields`` is (F, 2), shared by every sub-system, or (S, F, 2), per
+    sub-system. A fraction of ±1 is the centre of the EI's edge pixel: half an
+    EI less half a pixel from the EI centre (Eq. 1 layout, ``model.ei_centers``).
+    """
+    m, n, k = (np.asarray(a).reshape(-1) for a in (m, n, k))
+    fields = np.asarray(fields, dtype=np.float64)
+    per_sub = fields.ndim == 3
+    display = np.empty((len(m), fields.shape[-2], 2))
+    ppe = np.array(model.spec.pixels_per_ei, dtype=np.float64)
     for kk in set(k.tolist()):
         sel = k == kk
         s0 = model.ei_centers(kk, m[sel], n[sel])
-        # Outer fields at the centre of the edge pixel: half an EI less half a pixel.
         half = 0.5 * model.ei_pitch(kk) * (1.0 - 1.0 / ppe)
-        display[sel] = s0[:, None, :] + fields[None, :, :] * half
-    return Subsystems(m, n, k, fields, center, display)
+        f = fields[sel] if per_sub else fields[None, :, :]
+        display[sel] = s0[:, None, :] + f * half
+    return display
 
 
 @dataclass
