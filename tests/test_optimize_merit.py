@@ -76,11 +76,12 @@ def test_residuals_are_deterministic(freeform_merit):
 def test_optimize_cli_resume_and_bounds(scenes, tmp_path, capsys):
     """A short LM run lowers the merit and keeps every variable in its bounds; an
     interrupted run resumed from its checkpoint ends bit for bit where an
-    uninterrupted run does."""
+    uninterrupted run does, a later stage whose checkpoint went stale (its start
+    moved when the earlier stage resumed to more iterations) included."""
     import tomllib
 
     variables = [{"name": "S3.x2y0", "min": -0.75, "max": -0.70}, "S3.x0y2", "S4.x2y1", "tunable"]
-    d = _design(scenes, tmp_path, variables, stages=["integrated"], iterations=3)
+    d = _design(scenes, tmp_path, variables, stages=["relay_eyepiece", "integrated"], iterations=3)
     path = tmp_path / "ff.toml"
     import tomli_w
 
@@ -93,15 +94,25 @@ def test_optimize_cli_resume_and_bounds(scenes, tmp_path, capsys):
     assert -0.75 <= st["x_end"][0] <= -0.70
     opt = tomllib.loads((full / doc["optimized_design"]).read_text())
     s3 = next(s for s in opt["surfaces"] if s["name"] == "S3")
-    assert s3["xy"]["x2y0"] == st["x_end"][0]
+    assert s3["xy"]["x2y0"] == doc["stages"][-1]["x_end"][0]
     assert (full / "merit_history.png").stat().st_size > 0
     # Interrupted after 1 iteration, then resumed to 3.
     assert main(["optimize", str(path), "--out", str(part), "--no-analyze", "--iterations", "1", "--json"]) == 0
     capsys.readouterr()
     assert main(["optimize", str(path), "--out", str(part), "--no-analyze", "--resume", "--json"]) == 0
     doc2 = json.loads(capsys.readouterr().out)
-    assert doc2["stages"][0]["x_end"] == st["x_end"]
-    assert [h["cost"] for h in doc2["stages"][0]["history"]] == [h["cost"] for h in st["history"]]
+    for a, b in zip(doc2["stages"], doc["stages"], strict=True):
+        assert a["x_end"] == b["x_end"]
+        assert [h["cost"] for h in a["history"]] == [h["cost"] for h in b["history"]]
+    # The first stage's start is the design itself: a changed input is still refused.
+    ck = part / "checkpoints" / "integrated.npz"
+    assert ck.exists()
+    moved = tmp_path / "moved.toml"
+    s3 = next(s for s in d.raw["surfaces"] if s["name"] == "S3")
+    s3["xy"]["x0y2"] = s3["xy"]["x0y2"] * 1.01
+    moved.write_text(tomli_w.dumps(d.raw))
+    assert main(["optimize", str(moved), "--out", str(part), "--no-analyze", "--resume"]) == 2
+    assert "refusing to resume" in capsys.readouterr().err
 
 
 def test_optimize_bad_input(scenes, tmp_path, capsys):

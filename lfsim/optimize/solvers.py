@@ -183,6 +183,14 @@ def _save(path, meta, arrays):
         raise
 
 
+class CheckpointMismatch(ValueError):
+    """A checkpoint of another problem or other settings; ``keys`` names what differs."""
+
+    def __init__(self, message: str, keys: list[str]):
+        super().__init__(message)
+        self.keys = keys
+
+
 def _load(path, fingerprint):
     with np.load(path, allow_pickle=False) as z:
         meta = json.loads(str(z["meta"]))
@@ -190,8 +198,8 @@ def _load(path, fingerprint):
     stored = meta.get("fingerprint", {})
     if stored != fingerprint:
         keys = sorted(k for k in set(stored) | set(fingerprint) if stored.get(k) != fingerprint.get(k))
-        raise ValueError(f"checkpoint {path} belongs to a different problem or settings "
-                         f"(differs in {', '.join(keys)}); refusing to resume")
+        raise CheckpointMismatch(f"checkpoint {path} belongs to a different problem or settings "
+                                 f"(differs in {', '.join(keys)}); refusing to resume", keys)
     return meta, arrays
 
 

@@ -33,7 +33,7 @@ import numpy as np
 from ..design.design import Design
 from ..fileio import save_figure, write_json
 from .merit import IniMerit, columns
-from .solvers import Bounds, adam, levenberg_marquardt
+from .solvers import Bounds, CheckpointMismatch, adam, levenberg_marquardt
 
 
 def stage_columns(design: Design, cols, stage: str):
@@ -100,12 +100,25 @@ def optimize(design: Design, out_dir, stages=None, iterations: int | None = None
         n_it = iterations
         if stage == "full" and spec.full_iterations is not None and override is None:
             n_it = spec.full_iterations
-        if solver == "lm":
-            res = levenberg_marquardt(merit, x0, Bounds(lo, hi), max_iterations=n_it, scale=scale,
-                                      checkpoint=ckpt, resume=resume, progress=progress)
-        else:
-            res = adam(merit, x0, Bounds(lo, hi), iterations=n_it, scale=scale, checkpoint=ckpt,
-                       resume=resume, progress=progress)
+        def solve(resume_stage):
+            if solver == "lm":
+                return levenberg_marquardt(merit, x0, Bounds(lo, hi), max_iterations=n_it, scale=scale,
+                                           checkpoint=ckpt, resume=resume_stage, progress=progress)
+            return adam(merit, x0, Bounds(lo, hi), iterations=n_it, scale=scale, checkpoint=ckpt,
+                        resume=resume_stage, progress=progress)
+
+        try:
+            res = solve(resume)
+        except CheckpointMismatch as e:
+            # A later stage whose start moved (an earlier stage resumed with more iterations
+            # ended elsewhere): its checkpoint is stale, so the stage starts afresh. A first
+            # stage whose start moved means the input changed: that is still refused.
+            if not doc["stages"] or not set(e.keys) <= {"x0", "scale"}:
+                raise
+            log(f"stage {stage}: the earlier stages ended elsewhere than when {ckpt.name} was written; "
+                "starting this stage afresh")
+            ckpt.unlink()
+            res = solve(False)
         r1, _, det1 = merit.evaluate(res.x, derivatives=False)
         current = merit.design_at(res.x)
         secs = time.perf_counter() - t0
