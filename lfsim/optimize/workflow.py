@@ -143,7 +143,7 @@ def optimize(design: Design, out_dir, stages=None, iterations: int | None = None
                       f"({r['iterations']} iterations, {r['status']}, stride {r['stride'][0]}x{r['stride'][1]})")
     header.append("Evaluate with: lfsim analyze THIS_FILE --out DIR --stride 1,1")
     raw = dict(current.raw)
-    raw["name"] = f"{design.name} (optimized)"
+    raw["name"] = design.name if design.name.endswith("(optimized)") else f"{design.name} (optimized)"
     write_design(path, raw, header)
     doc["optimized_design"] = path.name
     plot_history(doc, out / "merit_history.png")
