@@ -395,6 +395,59 @@ def cmd_focal_stack(args) -> int:
     return 0
 
 
+def cmd_gradcheck(args) -> int:
+    from .design.content import load_content
+    from .render.diff_render import ViewSpec
+    from .render.gradcheck import run, table
+
+    content = load_content(args.content)
+    view = content.view
+    design_path = args.design or view.get("design")
+    if design_path is None:
+        raise InputError(f"{args.content}: view.design = missing: give a DESIGN argument")
+    design = _load_design(args, design_path)
+    if design.ini is None:
+        raise InputError(f"{design_path}: ini = missing: lfsim gradcheck renders an InI design")
+    names = [n.strip() for n in ",".join(args.param).split(",") if n.strip()]
+    if not names:
+        raise InputError("--param: give at least one parameter name")
+    from .render.diff_render import EXTRA_NAMES
+
+    known = set(design.parameter_names()) | set(EXTRA_NAMES)
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        raise InputError(f"--param {','.join(unknown)}: not a parameter of {design_path} "
+                         "(lfsim params DESIGN lists them; object.distance is the display gap)")
+    focus = _float_list(args.focus_mm, "--focus-mm") if args.focus_mm else view.get("focus_mm", [600.0, 1000.0, 1400.0])
+    cdp = float(args.cdp_mm) if args.cdp_mm is not None else view.get("cdp_mm", 1000.0)
+    pupil = args.pupil_mm if args.pupil_mm is not None else view.get("pupil_diameter", 3.0)
+    res = _int_pair(args.resolution, "--resolution")
+    for flag, v in (("--spp", args.spp), ("--rel-step", args.rel_step), ("--edge-rel-step", args.edge_rel_step),
+                    ("--pupil-mm", pupil), ("--cdp-mm", cdp)):
+        if not (v > 0 and math.isfinite(v) or (flag == "--cdp-mm" and v == math.inf)):
+            raise InputError(f"{flag} = {v!r}: must be > 0")
+    sweep = tuple(_float_list(args.sweep, "--sweep")) if args.sweep else ()
+    view_spec = ViewSpec(focus_mm=[float(f) for f in focus], cdp_mm=cdp, pupil_diameter_mm=float(pupil),
+                         resolution=res, spp=args.spp, seed=args.seed, cells=args.mla_cells)
+    log = None if args.json else (lambda msg: print(msg, file=sys.stderr))
+    doc = run(design, content, names, view_spec, rel_step=args.rel_step, edge_rel_step=args.edge_rel_step,
+              sweep=sweep, log=log)
+    bad = [p["name"] for p in doc["params"]
+           if (not p["boundary"] and p["rel_err"] > args.tolerance) or p["forward_reverse_rel"] > 1e-6]
+    doc["tolerance"], doc["failed"] = args.tolerance, bad
+    if args.json:
+        print(_dump(doc))
+    else:
+        print(f"{design_path} + {args.content}: {res[0]}x{res[1]} px, {args.spp} spp, focus "
+              f"{', '.join(f'{f:g}' for f in focus)} mm, loss {doc['loss']:.6g}")
+        print(table(doc))
+        s = doc["seconds"]
+        print(f"reverse {s['reverse']:.2f} s, forward {s['forward']:.2f} s, finite differences "
+              f"{s['finite_differences']:.2f} s; edge term at {args.edge_rel_step:g} x the step scale; "
+              + (f"FAILED: {', '.join(bad)}" if bad else f"interior parameters within {args.tolerance:g}"))
+    return 1 if bad else 0
+
+
 def cmd_report_accuracy(args) -> int:
     from .analysis.accuracy_report import report
 
@@ -410,6 +463,166 @@ def cmd_report_accuracy(args) -> int:
         print(f"  {k['stage']:8s} {k['key']:17s} default {v['default']:>14s}: error {err:>9s}  {meets}")
     print(f"wrote {args.out}/accuracy.md and {len(doc['plots'])} plots in {args.out}/img")
     return 0
+
+
+def _scheduler_args(args):
+    """(scheduler address or None, workers, serial) of `tolerance` / `sweep`."""
+    sched = args.scheduler
+    if sched is not None and not (sched.startswith(("tcp://", "tls://", "inproc://", "ucx://")) or sched == "serial"):
+        raise InputError(f"--scheduler = {sched!r}: expected a dask.distributed address tcp://HOST:PORT, or serial")
+    if args.workers is not None and args.workers < 1:
+        raise InputError(f"--workers = {args.workers}: must be >= 1")
+    serial = sched == "serial"
+    return (None if serial else sched), args.workers, serial
+
+
+def cmd_tolerance(args) -> int:
+    from .tolerance.monte_carlo import RunMismatch, run_tolerance
+
+    design = _load_design(args)
+    if design.ini is None:
+        raise InputError(f"{args.design}: ini = missing: lfsim tolerance needs an [ini] section")
+    for flag, v, lo in (("--trials", args.trials, 1), ("--seed", args.seed, 0), ("--batch", args.batch, 1)):
+        if v is not None and v < lo:
+            raise InputError(f"{flag} = {v}: must be >= {lo}")
+    sched, workers, serial = _scheduler_args(args)
+    try:
+        doc = run_tolerance(design, args.out, trials=args.trials, seed=args.seed, scheduler=sched, workers=workers,
+                            serial=serial, resume=args.resume, batch=args.batch,
+                            sensitivity=not args.no_sensitivity, plots=not args.no_plots,
+                            progress=sys.stderr.isatty() and not args.json)
+    except RunMismatch as e:
+        raise InputError(str(e)) from None
+    if args.json:
+        print(_dump(doc))
+        return 0
+    ci = doc["yield_ci95"]
+    print(f"{doc['design']}: {doc['trials']} trials in {doc['seconds']:.1f} s ({doc['execution']['mode']}, "
+          f"{doc['execution']['workers']} workers); yield {100 * doc['yield']:.1f} % "
+          f"(95 % CI {100 * ci[0]:.1f}-{100 * ci[1]:.1f} %)")
+    for t, y in doc["yield_by_target"].items():
+        print(f"  {t} {doc['targets'][t]:g}: {100 * y:.1f} % of trials")
+    print("  sensitivity (margin used at ± limit):")
+    for r in doc["sensitivity"]:
+        used = "inf" if r["margin_used_inf"] else ("-" if r["margin_used"] is None else f"{r['margin_used']:.3f}")
+        print(f"    {r['rank']:2d}. {r['name']:28s} ±{r['limit']:g}  {used:>7s}  ({r['worst_target']})")
+    print(f"wrote {args.out}/summary.json, trials.jsonl, sensitivity.jsonl, sensitivity.csv"
+          + (", " + ", ".join(doc.get("plots", [])) if doc.get("plots") else ""))
+    return 0
+
+
+def cmd_sweep(args) -> int:
+    from .design.overrides import load_with_overrides
+    from .tolerance.sweep import parse_axes, run_sweep
+
+    axes, fixed = parse_axes(args.set)
+    if not axes:
+        raise InputError("--set KEY=START:STOP:COUNT: give at least one axis to sweep")
+    design = load_with_overrides(args.design)
+    if design.ini is None:
+        raise InputError(f"{args.design}: ini = missing: lfsim sweep needs an [ini] section")
+    stride = _int_pair(args.stride, "--stride") if args.stride else None
+    if args.batch < 1:
+        raise InputError(f"--batch = {args.batch}: must be >= 1")
+    sched, workers, serial = _scheduler_args(args)
+    content = spec = None
+    if args.render:
+        from .design.content import load_content
+        from .render.focal_stack import FocalStackSpec
+
+        content = load_content(args.content)
+        view = content.view
+        if args.spp < 1:
+            raise InputError(f"--spp = {args.spp}: must be >= 1")
+        spec = FocalStackSpec(focus_mm=[float(f) for f in view.get("focus_mm", [600.0, 1000.0, 1400.0])],
+                              cdp_mm=view.get("cdp_mm", 1000.0), pupil_diameter_mm=view.get("pupil_diameter", 3.0),
+                              spp=args.spp, resolution=_int_pair(args.resolution, "--resolution"))
+    doc = run_sweep(design, args.out, axes, fixed, stride=stride, reference=args.reference, render=args.render,
+                    render_spec=spec, content=content, scheduler=sched, workers=workers, serial=serial,
+                    batch=args.batch, progress=sys.stderr.isatty() and not args.json)
+    if args.json:
+        print(_dump(doc))
+        return 0
+    keys = list(doc["axes"])
+    print(f"{doc['design']}: {len(doc['points'])} points in {doc['seconds']:.1f} s ({doc['execution']['mode']})")
+    for p in doc["points"]:
+        vals = " ".join(f"{k}={p['values'][k]:.6g}" for k in keys)
+        if p["error"]:
+            print(f"  {vals}: {p['error']}")
+            continue
+        m = p["metrics"]
+        fmt = lambda v, f: "-" if v is None else format(v, f)  # noqa: E731
+        print(f"  {vals}: GD max {fmt(m['gd_max_deg'], '.4f')} deg, PA max {fmt(m['pa_max'], '.4f')}, "
+              f"contrast min {fmt(m['contrast_nyquist_min'], '.3f')}, RMS {fmt(m['rms_spot_mean_arcmin'], '.3f')}'")
+    print(f"wrote {args.out}/sweep.json, sweep.csv, sweep.png" + (", points/*/" if args.render else ""))
+    return 0
+
+
+def _add_dask(parser) -> None:
+    parser.add_argument("--scheduler", help="dask.distributed scheduler address tcp://HOST:PORT (default: a local "
+                        "cluster started here); 'serial': this process, no Dask")
+    parser.add_argument("--workers", type=int, help="worker processes of the local cluster (default: CPU cores)")
+
+
+def cmd_compare(args) -> int:
+    from .analysis.compare import compare_paths, json_safe
+
+    limits = {"min_psnr": args.min_psnr, "min_ssim": args.min_ssim, "max_abs": args.max_abs}
+    doc = compare_paths(args.a, args.b, args.out, limits=limits)
+    if args.json:
+        print(_dump(json_safe(doc)))
+        return 1 if doc["failed"] else 0
+    for im in doc["images"]:
+        psnr = "inf (identical)" if math.isinf(im["psnr"]) else f"{im['psnr']:.2f} dB"
+        ssim = "-" if im["ssim"] is None else f"{im['ssim']:.4f}"
+        rmse = ", ".join(f"{c} {v:.4g}" for c, v in im["rmse_channels"].items())
+        print(f"{im['name']}: PSNR {psnr}, SSIM {ssim}, RMSE {im['rmse']:.4g} ({rmse}), "
+              f"max |B-A| {im['max_abs']:.4g}")
+    for msg in doc["failed"]:
+        print(f"FAILED: {msg}")
+    if args.out:
+        print(f"wrote {args.out}/compare.json and {len(doc['images'])} heat map(s)")
+    return 1 if doc["failed"] else 0
+
+
+def cmd_regress(args) -> int:
+    from .regression import check, update
+
+    if args.update and args.junit:
+        raise InputError("--junit: writes the checks of a comparison; not with --update")
+    given = {"content": args.content, "cdp_mm": args.cdp_mm, "pupil_mm": args.pupil_mm, "spp": args.spp,
+             "seed": args.seed, "eye": args.eye, "mla_cells": args.mla_cells, "optics": args.optics,
+             "tessellation": args.tessellation, "set": args.set,
+             "focus_mm": _float_list(args.focus_mm, "--focus-mm") if args.focus_mm else None,
+             "resolution": _int_pair(args.resolution, "--resolution") if args.resolution else None,
+             "stride": _int_pair(args.stride, "--stride") if args.stride else None,
+             "depths": _float_list(args.depths, "--depths") if args.depths else None,
+             "metrics": False if args.no_metrics else None}
+    log = (lambda msg: None) if args.json else (lambda msg: print(msg, file=sys.stderr))
+    if args.update:
+        doc = update(args.design, args.baseline, given, log=log)
+        if args.json:
+            print(_dump(doc))
+            return 0
+        o = doc["options"]
+        print(f"baseline {args.baseline}: {args.design}, {o['spp']} spp, {o['resolution'][0]}x{o['resolution'][1]} px, "
+              f"focus {','.join(f'{f:g}' for f in o['focus_mm'])} mm, seeds {doc['seeds']}, "
+              f"{len(doc['metrics'])} metrics, {doc['render_s']:.1f} s")
+        for name, n in doc["noise"].items():
+            print(f"  {name}: seed-to-seed noise {100 * n['rms_noise']:.1f}% of the mean; a reseeded candidate "
+                  f"fails from an RMS change of {100 * n['reseed_change_threshold']:.2f}%")
+        return 0
+    result = check(args.design, args.baseline, given, out_dir=args.out, junit=args.junit, log=log)
+    if args.json:
+        print(_dump(result.doc))
+        return 1 if result.failed else 0
+    print(f"{args.design} against {args.baseline}: {result.summary()}")
+    if any(c.status != "ok" for c in result.checks):
+        print(result.table(include_ok=False))
+    if args.out:
+        print(f"wrote {args.out}/report.json, report.txt and {len(result.files.get('heatmaps', []))} heat map(s)"
+              + (f"; JUnit XML {args.junit}" if args.junit else ""))
+    return 1 if result.failed else 0
 
 
 class _Parser(argparse.ArgumentParser):
@@ -522,6 +735,30 @@ def build_parser() -> argparse.ArgumentParser:
     fs.add_argument("--json", action="store_true")
     fs.set_defaults(func=cmd_focal_stack)
 
+    gcp = sub.add_parser("gradcheck", help="AD derivatives of a retinal render loss against central finite "
+                         "differences, with the boundary (visibility-edge) term per parameter")
+    gcp.add_argument("design", nargs="?", help="InI design (default: the content file's [view] design)")
+    gcp.add_argument("--param", action="append", required=True, metavar="NAME[,NAME...]",
+                     help="parameters to check (names from `lfsim params`, plus object.distance = display gap)")
+    gcp.add_argument("--content", default=DEFAULT_CONTENT, help=f"content scene (default {DEFAULT_CONTENT})")
+    gcp.add_argument("--focus-mm", help="eye focus distances, mm, comma separated (default: the content's)")
+    gcp.add_argument("--cdp-mm", help="CDP distance the tunable lens is set to, mm (default: the content's)")
+    gcp.add_argument("--pupil-mm", type=float, help="eye pupil diameter, mm (default: the content's, else 3)")
+    gcp.add_argument("--resolution", default="96,54", help="W,H of the retinal images (default 96,54)")
+    gcp.add_argument("--spp", type=int, default=16, help="samples per pixel (default 16)")
+    gcp.add_argument("--seed", type=int, default=0)
+    gcp.add_argument("--rel-step", type=float, default=1e-7,
+                     help="central-difference step relative to max(|value|, unit floor) (default 1e-7)")
+    gcp.add_argument("--edge-rel-step", type=float, default=1e-3,
+                     help="relative step at which the edge (boundary) term is measured (default 1e-3)")
+    gcp.add_argument("--sweep", help="further relative steps to report, comma separated (e.g. 1e-5,1e-6)")
+    gcp.add_argument("--tolerance", type=float, default=0.02,
+                     help="largest relative error of an interior parameter (default 0.02); exit 1 beyond")
+    gcp.add_argument("--mla-cells", choices=("per_surface", "fixed"), default="per_surface")
+    _add_set(gcp)
+    gcp.add_argument("--json", action="store_true")
+    gcp.set_defaults(func=cmd_gradcheck)
+
     rp = sub.add_parser("report", help="reports: `report accuracy` (error against run time of every knob)")
     rsub = rp.add_subparsers(dest="report", required=True, metavar="REPORT")
     acc = rsub.add_parser("accuracy", help="measure error against run time of every approximation knob and write "
@@ -530,6 +767,78 @@ def build_parser() -> argparse.ArgumentParser:
     acc.add_argument("--quick", action="store_true", help="a small version: fewer settings, rays and pixels")
     acc.add_argument("--json", action="store_true")
     acc.set_defaults(func=cmd_report_accuracy)
+
+    tol = sub.add_parser("tolerance", help="Monte Carlo tolerance analysis of the design's [tolerance] section "
+                         "(with compensators), sensitivity table and yield, on Dask")
+    tol.add_argument("design")
+    tol.add_argument("--out", required=True, help="output directory (summary.json, trials.jsonl, plots)")
+    tol.add_argument("--trials", type=int, help="Monte Carlo trials (default: tolerance.trials)")
+    tol.add_argument("--seed", type=int, help="random seed (default: tolerance.seed)")
+    tol.add_argument("--batch", type=int, help="trials per Dask task (default: tolerance.batch)")
+    tol.add_argument("--resume", action="store_true", help="continue the run stored in --out")
+    tol.add_argument("--no-sensitivity", action="store_true", help="skip the ± limit runs of each tolerance")
+    tol.add_argument("--no-plots", action="store_true")
+    _add_dask(tol)
+    _add_set(tol)
+    tol.add_argument("--json", action="store_true")
+    tol.set_defaults(func=cmd_tolerance)
+
+    sw = sub.add_parser("sweep", help="InI metrics over a grid of design numbers (--set KEY=START:STOP:COUNT), "
+                        "optionally with focal stacks, on Dask")
+    sw.add_argument("design")
+    sw.add_argument("--set", action="append", metavar="KEY=START:STOP:COUNT|KEY=VALUE",
+                    help="an axis of the grid (numpy.linspace) or a fixed override (repeatable)")
+    sw.add_argument("--out", required=True, help="output directory (sweep.json, sweep.csv, sweep.png)")
+    sw.add_argument("--stride", help="lenslet stride SX,SY of the metrics (default from [ini.analysis])")
+    sw.add_argument("--reference", choices=("self", "nominal"), default="self",
+                    help="GD/PA against each point's own paraxial rays (self) or the unswept design's")
+    sw.add_argument("--render", action="store_true", help="render a focal stack of every point")
+    sw.add_argument("--content", default=DEFAULT_CONTENT, help=f"content scene of --render ({DEFAULT_CONTENT})")
+    sw.add_argument("--spp", type=int, default=16, help="samples per pixel of --render (16)")
+    sw.add_argument("--resolution", default="160,84", help="W,H of the --render retinal images (160,84)")
+    sw.add_argument("--batch", type=int, default=1, help="points per Dask task (1)")
+    _add_dask(sw)
+    sw.add_argument("--json", action="store_true")
+    sw.set_defaults(func=cmd_sweep)
+
+    cmp = sub.add_parser("compare", help="compare two EXR images or two folders of EXRs (focal stacks): PSNR, "
+                         "SSIM, RMSE per channel, largest error, heat maps")
+    cmp.add_argument("a", metavar="A", help="reference EXR (or folder of EXRs)")
+    cmp.add_argument("b", metavar="B", help="EXR (or folder) compared with A; folders are matched by file name")
+    cmp.add_argument("--out", default="renders/compare", help="folder for compare.json and the heat map PNGs "
+                     "(default renders/compare)")
+    cmp.add_argument("--min-psnr", type=float, help="exit 1 when the PSNR (dB) is below this")
+    cmp.add_argument("--min-ssim", type=float, help="exit 1 when the SSIM is below this")
+    cmp.add_argument("--max-abs", type=float, help="exit 1 when the largest absolute error is above this")
+    cmp.add_argument("--json", action="store_true")
+    cmp.set_defaults(func=cmd_compare)
+
+    rg = sub.add_parser("regress", help="re-render a design's focal stack and re-compute its metrics against a "
+                        "stored baseline; exit 1 on a regression")
+    rg.add_argument("design")
+    rg.add_argument("--baseline", required=True, help="baseline folder (created with --update)")
+    rg.add_argument("--update", action="store_true", help="(re-)create the baseline from this design")
+    rg.add_argument("--junit", help="write the checks as JUnit XML to this file")
+    rg.add_argument("--out", default="renders/regress", help="folder for report.json, report.txt, the candidate's "
+                    "images and heat maps (default renders/regress)")
+    rg.add_argument("--content", help=f"content scene (default: the baseline's, else {DEFAULT_CONTENT})")
+    rg.add_argument("--focus-mm", help="eye focus distances, mm, comma separated (default: the baseline's, else "
+                    "the content's)")
+    rg.add_argument("--cdp-mm", help="CDP distance, mm (inf allowed; default: the baseline's, else the content's)")
+    rg.add_argument("--pupil-mm", type=float, help="eye pupil diameter, mm")
+    rg.add_argument("--eye", choices=("ideal", "arizona"))
+    rg.add_argument("--spp", type=int, help="samples per pixel (default: the baseline's, else 32)")
+    rg.add_argument("--resolution", help="W,H of the retinal images (default: the baseline's, else 512 wide)")
+    rg.add_argument("--seed", type=int, help="first of the two seeds (default: the baseline's, else 0)")
+    rg.add_argument("--mla-cells", choices=("per_surface", "fixed"))
+    rg.add_argument("--optics", choices=("analytic", "mesh"))
+    rg.add_argument("--tessellation", type=float)
+    rg.add_argument("--stride", help="lenslet stride SX,SY of the design metrics (default from [ini.analysis])")
+    rg.add_argument("--depths", help="CDP depths (D) of the design metrics, comma separated (default all)")
+    rg.add_argument("--no-metrics", action="store_true", help="images only (no design metrics)")
+    _add_set(rg)
+    rg.add_argument("--json", action="store_true")
+    rg.set_defaults(func=cmd_regress)
     return p
 
 

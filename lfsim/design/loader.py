@@ -57,7 +57,8 @@ SURFACE_KEYS = {
     "comment", "focal_length",
 }
 SURFACE_TYPES = ("standard", "even_asphere", "xy_polynomial", "coordinate_break", "paraxial")
-TOP_KEYS = {"name", "description", "system", "object", "surfaces", "arrays", "ini", "render", "optimize"}
+TOP_KEYS = {"name", "description", "system", "object", "surfaces", "arrays", "ini", "render", "optimize",
+            "tolerance"}
 #: Largest magnitude of a finite design number (mm, 1/mm, degrees, ...): 1e15 mm is 1e9 km,
 #: and the tracer's squares of such numbers stay finite in float32 (max 3.4e38).
 MAX_ABS = 1e15

@@ -146,8 +146,10 @@ class IniModel:
         k = j % 4
         seed = dr.zeros(T.Float, 1)
         dr.enable_grad(seed)
-        comp = [T.Float(float(base[c])) + dr.select(k == c, seed, 0.0) for c in range(4)]
-        o = T.Array3(comp[0], comp[1], T.Float(z_in) + 0.0 * comp[0])
+        # Opaque (evaluated) scalars, not literals: a kernel compiled for one design is
+        # reused for another whose axis point, display gap or frames differ.
+        comp = [dr.opaque(T.Float, float(base[c])) + dr.select(k == c, seed, 0.0) for c in range(4)]
+        o = T.Array3(comp[0], comp[1], dr.opaque(T.Float, float(z_in)) + 0.0 * comp[0])
         d = T.Array3(comp[2], comp[3], 1.0 + 0.0 * comp[0])
         P = tr.params(values=blocks.ravel())
         lens = None
@@ -155,8 +157,8 @@ class IniModel:
             lens = (dr.full(T.Int32, lenslet[0], 4 * nb), dr.full(T.Int32, lenslet[1], 4 * nb))
         out = tr.trace(P, RayState(o, d), block=j // 4, lenslet=lens, first=first, last=last)
         R, og = frame
-        Rt = T.Matrix3(*(float(v) for v in R.T.ravel()))
-        pl = Rt @ (out.p - T.Array3(*(float(v) for v in og)))
+        Rt = T.Matrix3(*(dr.opaque(T.Float, float(v)) for v in R.T.ravel()))
+        pl = Rt @ (out.p - T.Array3(*(dr.opaque(T.Float, float(v)) for v in og)))
         dl = Rt @ out.d
         tx, ty = dl.x / dl.z, dl.y / dl.z
         if on_surface:

@@ -1,0 +1,319 @@
+"""Gradient check of retinal renders: automatic differentiation against finite differences.
+
+For a render loss ``L(θ)`` of the analytic display path
+(:class:`~lfsim.render.diff_render.AnalyticRenderer`) and named design
+parameters θ_k, :func:`gradcheck` reports
+
+* ``ad``: dL/dθ_k by reverse-mode AD (one ``dr.backward`` for all k);
+* ``ad_forward``: the same by forward mode (``dr.forward_from`` along e_k);
+* ``fd``: the central difference ``(L(θ + h e_k) − L(θ − h e_k)) / 2h`` with
+  the same samples (common random numbers) at the step h of
+  :func:`fd_step` (relative 1e-7 by default: small enough that the bilinear
+  kinks of the display image and visibility edges are almost never crossed,
+  so it is the pathwise derivative AD must match); ``fd_interior``: the same
+  with every sample whose discrete path changed kept at its θ value;
+* ``boundary_term``: ``fd − fd_interior`` at the larger edge step (relative
+  1e-3), where many samples cross a visibility edge (another lenslet cell,
+  vignetted or not, on or off the display): the boundary term that the AD
+  estimator does not contain, and ``bias = −boundary_term / (ad +
+  boundary_term)``, the share of the full derivative AD misses;
+* ``boundary``: true when some samples crossed an edge at the edge step and
+  the edge term is at least :data:`BOUNDARY_SHARE` of the full derivative.
+
+Loss: ``L = Σ_focus mean_pixels (I − R)²`` against a target R (by default the
+natural view of the content through the same eye), which is smooth in the
+image.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import drjit as dr
+import numpy as np
+
+#: Smallest |value| a step is scaled from, by unit (a parameter at 0 still needs a step).
+STEP_FLOOR = {"mm": 1.0, "deg": 1.0, "1/mm": 1e-2, "": 1.0}
+#: Default relative step of the central differences.
+REL_STEP = 1e-7
+#: Relative step at which the edge (boundary) term is measured: enough samples cross edges.
+EDGE_REL_STEP = 1e-3
+#: A parameter is boundary-type when its edge term is at least this share of |fd|.
+BOUNDARY_SHARE = 0.005
+
+
+def fd_step(name: str, value: float, unit: str, rel: float = REL_STEP) -> float:
+    """Central-difference step: ``rel · max(|value|, floor(unit))``.
+
+    Floors: 1 mm for lengths, 1° for angles, 0.01 mm⁻¹ (10 D) for powers and
+    curvatures, 1 for indices and conics; aspheric coefficients (mm^(1−2i))
+    use their own magnitude, or 1e-6 at zero.
+    """
+    floor = STEP_FLOOR.get(unit, 1e-6)
+    return float(rel * max(abs(float(value)), floor))
+
+
+def natural_targets(renderer, content, spp: int | None = None, seed: int = 1) -> list[np.ndarray]:
+    """The natural view of ``content`` through the renderer's eye, per focus (H, W, C)."""
+    from .content import scene_dict
+    from .eye import EyeSpec
+    from .focal_stack import INTEGRATOR, render
+
+    v = renderer.view
+    out = []
+    for f in v.focus_mm:
+        eye = EyeSpec(v.eye_model, v.pupil_diameter_mm, float(f), tuple(renderer.fov_deg),
+                      (renderer.W, renderer.H))
+        sd = scene_dict(content)
+        sd["sensor"] = eye.sensor_dict(None, int(spp or renderer.spp), seed)
+        sd["integrator"] = INTEGRATOR
+        img, _ = render(sd)
+        img = img.astype(np.float64)
+        if renderer.channels == 1:
+            img = img @ np.array([0.2126, 0.7152, 0.0722])[:, None]
+        out.append(img)
+    return out
+
+
+class RenderLoss:
+    """``L(P) = Σ_k mean (I_k(P) − R_k)²`` over the renderer's focus distances.
+
+    ``targets``: list of (H, W, C) arrays, one per focus distance.
+    """
+
+    def __init__(self, renderer, targets):
+        from .. import backend
+
+        self.r = renderer
+        T = renderer.T
+        if len(targets) != len(renderer.view.focus_mm):
+            raise ValueError(f"{len(targets)} targets for {len(renderer.view.focus_mm)} focus distances")
+        self.targets, self.targets_np = [], []
+        for t in targets:
+            t = np.asarray(t, dtype=np.float64).reshape(renderer.H, renderer.W, -1)
+            if t.shape[-1] != renderer.channels:
+                raise ValueError(f"target has {t.shape[-1]} channels, the renderer {renderer.channels}")
+            self.targets_np.append(t.reshape(-1, renderer.channels))
+            self.targets.append([backend.from_numpy(T.Float, t[..., c].ravel().astype(T.np_dtype))
+                                 for c in range(renderer.channels)])
+        self.norm = 1.0 / (renderer.n_pixels * renderer.channels)
+
+    def __call__(self, P, optics=None):
+        total = 0.0
+        for k, ref in enumerate(self.targets):
+            img = self.r.image(P, k, optics=optics)
+            for c in range(self.r.channels):
+                total = total + dr.sum(dr.square(img[c] - ref[c])) * self.norm
+        return total
+
+    def value(self, values) -> float:
+        with dr.suspend_grad():
+            return float(self(self.r.params(values))[0])
+
+
+def gradient(loss: RenderLoss, values=None, wrt=None):
+    """(L, dL/dP) by reverse-mode AD at ``values`` (numpy, full design vector);
+    ``wrt``: indices of the entries wanted (default all)."""
+    r = loss.r
+    return r.backward(r.params(values), lambda optics: loss(None, optics), wrt)
+
+
+def directional(loss: RenderLoss, direction, values=None) -> float:
+    """dL/dt of ``L(P + t·direction)`` at t = 0, by forward-mode AD."""
+    from .. import backend
+
+    r = loss.r
+    T = r.T
+    t = dr.zeros(T.Float, 1)
+    dr.enable_grad(t)
+    V = backend.from_numpy(T.Float, np.asarray(direction, dtype=np.float64).astype(T.np_dtype))
+    P = r.params(values) + t * V
+    L = loss(P)
+    dr.forward_from(t)
+    return float(dr.grad(L)[0])
+
+
+def _batch_numpy(r, values, k):
+    with dr.suspend_grad():
+        b = r.trace(r.params(values), k)
+        dr.eval(b.x, b.y, b.valid, b.status, *b.value)
+        return (np.asarray(b.x, dtype=np.float64), np.asarray(b.y, dtype=np.float64),
+                np.asarray(b.valid, dtype=bool), np.asarray(b.status),
+                np.stack([np.asarray(v, dtype=np.float64) for v in b.value], axis=-1))
+
+
+@dataclass
+class Difference:
+    """Central difference of the loss over [θ−h, θ+h], split by continuity of the samples."""
+
+    step: float
+    fd: float  # (L(θ+h) − L(θ−h)) / 2h
+    fd_interior: float  # the same with every sample whose path changed kept at its θ value
+    edge_samples: int  # samples whose discrete path changed (cell, vignetting, on/off display)
+
+    @property
+    def boundary_term(self) -> float:
+        return self.fd - self.fd_interior
+
+
+def _numpy_loss(loss, samples) -> float:
+    r = loss.r
+    total = 0.0
+    for k, f in enumerate(samples):
+        img = f.reshape(r.n_pixels, r.spp, -1).mean(axis=1)
+        ref = loss.targets_np[k]
+        total += float(np.sum((img - ref) ** 2)) * loss.norm
+    return total
+
+
+def difference(loss: RenderLoss, values, i: int, h: float) -> Difference:
+    """Central difference of parameter ``i`` at step ``h``, with its interior part.
+
+    A sample's path changed when its tracer status or visibility differs among
+    θ − h, θ, θ + h, or its display hit jumps (second difference larger than a
+    quarter display pixel: another lenslet cell). ``fd_interior`` keeps those
+    samples at their θ value, so it is the difference of the continuous part
+    of the integrand, which AD must match; ``fd − fd_interior`` is the edge term.
+    """
+    r = loss.r
+    v0 = np.asarray(values, dtype=np.float64)
+    vp, vm = v0.copy(), v0.copy()
+    vp[i] += h
+    vm[i] -= h
+    tol = 0.25 * r.layout.pixel_pitch
+    fm_all, fp_all, fmi, fpi, n = [], [], [], [], 0
+    for k in range(len(r.view.focus_mm)):
+        xm, ym, okm, sm, fm = _batch_numpy(r, vm, k)
+        x0, y0, ok0, s0, f0 = _batch_numpy(r, v0, k)
+        xp, yp, okp, sp, fp = _batch_numpy(r, vp, k)
+        jump = (okm | ok0 | okp) & (np.hypot(xp - 2 * x0 + xm, yp - 2 * y0 + ym) > tol)
+        flip = (okm != ok0) | (okp != ok0) | (sm != s0) | (sp != s0) | jump
+        n += int(np.count_nonzero(flip))
+        fm_all.append(fm)
+        fp_all.append(fp)
+        fmi.append(np.where(flip[:, None], f0, fm))
+        fpi.append(np.where(flip[:, None], f0, fp))
+    fd = (_numpy_loss(loss, fp_all) - _numpy_loss(loss, fm_all)) / (2 * h)
+    fdi = (_numpy_loss(loss, fpi) - _numpy_loss(loss, fmi)) / (2 * h)
+    return Difference(h, fd, fdi, n)
+
+
+def gradcheck(renderer, targets, names: list[str], values=None, rel_step: float = REL_STEP,
+              edge_rel_step: float = EDGE_REL_STEP, sweep: tuple[float, ...] = (), log=None) -> dict:
+    """Compare AD (reverse and forward) with central differences for ``names``.
+
+    Returns ``{"loss", "params": [...], "seconds": {...}}``. Each parameter record:
+
+    ``name``, ``value``, ``unit``; ``ad`` (reverse mode), ``ad_forward``;
+    ``fd``, ``fd_interior``, ``fd_step`` (the central difference at the step
+    of :func:`fd_step` with ``rel_step``, and its interior part);
+    ``rel_err = |ad − fd| / |fd|`` and ``interior_rel_err = |ad − fd_interior| /
+    |fd_interior|``; ``boundary_term`` (per unit of the parameter), measured at
+    the larger ``edge_rel_step`` where enough samples cross an edge
+    (``edge_samples``, ``edge_step``); ``bias = −boundary_term / (ad +
+    boundary_term)``, the share of the full derivative that AD misses;
+    ``boundary`` (see the module docstring); ``forward_reverse_rel``; with
+    ``sweep`` (relative steps), ``fd_sweep`` [{``rel_step``, ``step``, ``fd``,
+    ``fd_interior``, ``boundary_term``, ``edge_samples``}].
+    """
+    r = renderer
+    unknown = [n for n in names if n not in r.index]
+    if unknown:
+        raise ValueError(f"unknown parameter(s) {', '.join(unknown)}: see `lfsim params DESIGN` "
+                         f"(and {', '.join(r.names[-1:])})")
+    loss = RenderLoss(r, targets)
+    v0 = r.values0.copy() if values is None else np.asarray(values, dtype=np.float64)
+    units = _units(r)
+    t0 = time.perf_counter()
+    L0, grad = gradient(loss, v0, [r.index[n] for n in names])
+    t_rev = time.perf_counter() - t0
+    rows, t_fwd, t_fd = [], 0.0, 0.0
+    for name in names:
+        i = r.index[name]
+        e = np.zeros_like(v0)
+        e[i] = 1.0
+        t0 = time.perf_counter()
+        ad_f = directional(loss, e, v0)
+        t_fwd += time.perf_counter() - t0
+        t0 = time.perf_counter()
+        main = difference(loss, v0, i, fd_step(name, v0[i], units[i], rel_step))
+        edge = difference(loss, v0, i, fd_step(name, v0[i], units[i], edge_rel_step))
+        sw = [(rel, difference(loss, v0, i, fd_step(name, v0[i], units[i], rel))) for rel in sweep]
+        t_fd += time.perf_counter() - t0
+        ad = float(grad[i])
+        B = edge.boundary_term
+        total = ad + B
+        rec = {"name": name, "value": float(v0[i]), "unit": units[i], "ad": ad, "ad_forward": ad_f,
+               "fd": main.fd, "fd_interior": main.fd_interior, "fd_step": main.step,
+               "rel_err": _rel(ad, main.fd), "interior_rel_err": _rel(ad, main.fd_interior),
+               "boundary_term": B, "edge_step": edge.step, "edge_samples": edge.edge_samples,
+               "bias": (-B / total) if total != 0.0 else 0.0,
+               "boundary": bool(edge.edge_samples > 0 and abs(B) >= BOUNDARY_SHARE * abs(total)),
+               "forward_reverse_rel": _rel(ad_f, ad)}
+        if sweep:
+            rec["fd_sweep"] = [{"rel_step": rel, "step": d.step, "fd": d.fd, "fd_interior": d.fd_interior,
+                                "boundary_term": d.boundary_term, "edge_samples": d.edge_samples}
+                               for rel, d in sw]
+        rows.append(rec)
+        if log:
+            log(f"{name}: ad {ad:.6g}  fd {main.fd:.6g}  interior {main.fd_interior:.6g}  edge term {B:.3g}")
+    return {"loss": L0, "params": rows, "samples": r.n_pixels * r.spp * len(r.view.focus_mm),
+            "seconds": {"reverse": round(t_rev, 3), "forward": round(t_fwd, 3),
+                        "finite_differences": round(t_fd, 3)}}
+
+
+def _rel(a: float, b: float) -> float:
+    if b == 0.0:
+        return 0.0 if a == 0.0 else float("inf")
+    return abs(a - b) / abs(b)
+
+
+def _units(r) -> list[str]:
+    table = {n: u for n, _, u in r.model.system.parameter_table()}
+    return [table.get(n, "mm") for n in r.names]
+
+
+def run(design, content, names: list[str], view, rel_step: float = REL_STEP,
+        edge_rel_step: float = EDGE_REL_STEP, sweep: tuple[float, ...] = (), precision: str = "float64",
+        target_spp: int | None = None, log=None) -> dict:
+    """Gradient check of the analytic display path for ``design`` showing ``content``.
+
+    Builds an :class:`~lfsim.render.diff_render.AnalyticRenderer` for ``view``
+    (a :class:`~lfsim.render.diff_render.ViewSpec`), renders the natural view
+    of the content through the same eye as the target (``target_spp``,
+    default 4 × the view's spp) and calls :func:`gradcheck`. The returned
+    document adds the settings (``design``, ``content``, ``resolution``,
+    ``spp``, ``focus_mm``, ``cdp_mm``, ``pupil_mm``, ``seed``, ``cells``,
+    ``precision``, ``rel_step``, ``edge_rel_step``) and ``setup_s``.
+    """
+    from .diff_render import AnalyticRenderer
+
+    t0 = time.perf_counter()
+    r = AnalyticRenderer(design, view, content=content, precision=precision)
+    unknown = [n for n in names if n not in r.index]
+    if unknown:
+        raise ValueError(f"--param {','.join(unknown)}: not a parameter of {design.path or design.name} "
+                         "(lfsim params DESIGN lists them; object.distance is the display gap)")
+    targets = natural_targets(r, content, spp=target_spp or 4 * view.spp, seed=view.seed + 1)
+    setup = time.perf_counter() - t0
+    doc = gradcheck(r, targets, names, rel_step=rel_step, edge_rel_step=edge_rel_step, sweep=sweep, log=log)
+    doc = {"design": design.path or design.name, "content": getattr(content, "path", None),
+           "path": "analytic", "resolution": [r.W, r.H], "spp": r.spp, "focus_mm": list(view.focus_mm),
+           "cdp_mm": view.cdp_mm, "pupil_mm": view.pupil_diameter_mm, "seed": view.seed, "cells": view.cells,
+           "precision": precision, "rel_step": rel_step, "edge_rel_step": edge_rel_step,
+           "setup_s": round(setup, 3), **doc}
+    return doc
+
+
+def table(doc: dict) -> str:
+    """The gradcheck table as text (one row per parameter)."""
+    head = (f"{'parameter':18s} {'value':>12s} {'AD':>12s} {'FD':>12s} {'rel err':>9s} {'FD step':>9s} "
+            f"{'edge term':>11s} {'bias':>8s} {'edges':>6s}  type")
+    lines = [head, "-" * len(head)]
+    for p in doc["params"]:
+        kind = "boundary" if p["boundary"] else "interior"
+        lines.append(f"{p['name']:18s} {p['value']:12.6g} {p['ad']:12.5g} {p['fd']:12.5g} {p['rel_err']:9.2e} "
+                     f"{p['fd_step']:9.2e} {p['boundary_term']:11.4g} {100 * p['bias']:7.1f}% "
+                     f"{p['edge_samples']:6d}  {kind}")
+    return "\n".join(lines)

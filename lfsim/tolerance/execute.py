@@ -1,0 +1,107 @@
+"""Running trials on Dask (``dask.distributed``), or serially in this process.
+
+Work is a list of *units* ``(uid, payload)`` (a trial's offsets, a sweep
+point's overrides). Units are grouped into batches of ``batch``; one batch is
+one Dask task, :func:`run_units`, which evaluates its units one after the
+other in the worker process with an evaluator that the process builds once
+per job and keeps (:data:`_EVALUATORS`): the nominal design, its first-order
+model and the Dr.Jit kernels, which are compiled on the first unit and
+reused by all later ones of that worker.
+
+Where the tasks run:
+
+* ``serial=True``: in this process, in order (no Dask);
+* ``scheduler=None``: a ``dask.distributed.LocalCluster`` started here on
+  127.0.0.1 (worker processes, one thread each; Dr.Jit gets
+  ``cores // workers`` threads per worker), closed at the end;
+* ``scheduler="tcp://HOST:PORT"``: an existing cluster's scheduler. Its
+  workers need lfsim installed (same version); ``LFSIM_THREADS`` in their
+  environment sets Dr.Jit's threads.
+
+Results come back to this process as tasks finish (``as_completed``) and are
+handed to ``on_records`` at once (the tolerance run appends them to its
+store). A worker lost mid-run loses only its unfinished task, which the
+scheduler runs again elsewhere; records are keyed by ``uid``, so the store
+keeps each unit once.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+
+#: Evaluators built in this process, by job key (one per design / spec).
+_EVALUATORS: dict = {}
+
+
+def _evaluator(job: dict):
+    ev = _EVALUATORS.get(job["key"])
+    if ev is None:
+        if job.get("threads"):
+            from ..backend import configure
+
+            configure(threads=int(job["threads"]))
+        if job["kind"] == "tolerance":
+            from .trial import TrialEvaluator
+
+            ev = TrialEvaluator(job["raw"], job["path"], job["spec"])
+        elif job["kind"] == "sweep":
+            from .sweep import PointEvaluator
+
+            ev = PointEvaluator(job["raw"], job["path"], job["reference"])
+        else:  # pragma: no cover - jobs are built by this package
+            raise ValueError(f"unknown job kind {job['kind']!r}")
+        _EVALUATORS.clear()  # one job per worker at a time: free the previous design's state
+        _EVALUATORS[job["key"]] = ev
+    return ev
+
+
+def run_units(job: dict, units: list) -> list[dict]:
+    """Dask task: evaluate ``units`` [(uid, payload)] of ``job`` in this process; their records."""
+    ev = _evaluator(job)
+    return [ev.run(uid, payload) for uid, payload in units]
+
+
+def batches(units: list, batch: int) -> list[list]:
+    return [units[i:i + batch] for i in range(0, len(units), max(1, int(batch)))]
+
+
+def run(job: dict, units: list, batch: int = 8, scheduler: str | None = None, workers: int | None = None,
+        serial: bool = False, on_records: Callable[[list[dict]], None] | None = None) -> dict:
+    """Evaluate every unit; records go to ``on_records`` as each batch finishes.
+
+    Returns a description of where it ran: ``{"mode", "scheduler", "workers"}``.
+    """
+    on_records = on_records or (lambda recs: None)
+    chunks = batches(units, batch)
+    if serial:
+        for chunk in chunks:
+            on_records(run_units(job, chunk))
+        return {"mode": "serial", "scheduler": None, "workers": 1}
+
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    cluster = None
+    if scheduler is None:
+        n = int(workers or os.cpu_count() or 1)
+        threads = max(1, (os.cpu_count() or 1) // n)
+        job = {**job, "threads": threads}
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
+                               dashboard_address=":0")
+        client = Client(cluster)
+        where = {"mode": "local", "scheduler": cluster.scheduler_address, "workers": n}
+    else:
+        client = Client(scheduler, timeout="30s")
+        where = {"mode": "scheduler", "scheduler": scheduler,
+                 "workers": len(client.scheduler_info().get("workers", {}))}
+    try:
+        job_f = client.scatter(job, broadcast=True)
+        futures = [client.submit(run_units, job_f, chunk, pure=False, retries=2) for chunk in chunks]
+        for fut in as_completed(futures):
+            on_records(fut.result())
+            fut.release()
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    return where

@@ -1,0 +1,203 @@
+"""`lfsim sweep`: the InI metrics over a grid of design numbers, optionally with focal stacks.
+
+``--set KEY=START:STOP:COUNT`` gives an axis (``numpy.linspace(START, STOP,
+COUNT)``), ``--set KEY=VALUE`` a fixed override; the grid is the product of
+the axes (the first axis varies slowest). Keys are those of ``--set``
+(:mod:`lfsim.design.overrides`). Each point is the design with its overrides,
+validated like a file, and measured like ``lfsim analyze`` (its own paraxial
+reference, the ``[ini.analysis]`` sampling); a point the design cannot take is
+recorded with its error. Points are evaluated on Dask like tolerance trials
+(:mod:`lfsim.tolerance.execute`). With ``render``, a focal stack of every valid
+point is rendered afterwards in this process (Mitsuba), into
+``DIR/points/<index>/``.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import itertools
+import math
+import os
+import socket
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..design.design import Design
+from ..design.errors import DesignError
+from ..design.overrides import apply_overrides, parse_assignment, parse_number
+from ..fileio import write_json, write_text
+from ..ini.model import IniModelError
+from . import execute
+from .trial import METRICS, metrics_of
+
+
+def parse_axes(items, flag: str = "--set") -> tuple[dict[str, np.ndarray], dict[str, float]]:
+    """``KEY=START:STOP:COUNT`` items → axes {key: values}; ``KEY=VALUE`` → fixed {key: value}."""
+    axes: dict[str, np.ndarray] = {}
+    fixed: dict[str, float] = {}
+    for item in items or ():
+        key, text = parse_assignment(item, flag)
+        if key in axes or key in fixed:
+            raise ValueError(f"{flag} {key}: given twice")
+        if ":" in text:
+            parts = text.split(":")
+            if len(parts) != 3:
+                raise ValueError(f"{flag} {key} = {text!r}: expected START:STOP:COUNT, e.g. 0:0.02:5")
+            start, stop = (parse_number(p, key, flag) for p in parts[:2])
+            try:
+                count = int(parts[2])
+            except ValueError:
+                raise ValueError(f"{flag} {key} = {text!r}: COUNT must be an integer >= 1") from None
+            if count < 1 or not (math.isfinite(start) and math.isfinite(stop)):
+                raise ValueError(f"{flag} {key} = {text!r}: finite START, STOP and an integer COUNT >= 1")
+            axes[key] = np.linspace(start, stop, count)
+        else:
+            fixed[key] = parse_number(text, key, flag)
+    return axes, fixed
+
+
+def grid(axes: dict[str, np.ndarray]) -> list[dict[str, float]]:
+    keys = list(axes)
+    return [dict(zip(keys, (float(v) for v in combo))) for combo in itertools.product(*(axes[k] for k in keys))]
+
+
+class PointEvaluator:
+    """Evaluates sweep points of one design (built once per worker process)."""
+
+    def __init__(self, raw: dict, path: str, reference: str | None = None):
+        self.raw, self.path = raw, path
+        self.reference = None
+        if reference == "nominal":
+            from ..ini.model import IniModel
+
+            self.reference = IniModel(Design.from_dict(raw, path))
+
+    def run(self, uid: str, overrides: dict[str, float]) -> dict:
+        t0 = time.perf_counter()
+        rec = {"id": uid, "values": dict(overrides), "metrics": None, "error": None}
+        try:
+            design = Design.from_dict(apply_overrides(self.raw, overrides, self.path), self.path)
+            rec["metrics"] = metrics_of(design, self.reference)
+        except (DesignError, IniModelError, ValueError, FloatingPointError) as e:
+            rec["error"] = " ".join(str(e).split())[:300]
+        rec["seconds"] = round(time.perf_counter() - t0, 4)
+        rec["worker"] = f"{socket.gethostname()}:{os.getpid()}"
+        return rec
+
+
+def _table_csv(keys, points) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(["index", *keys, *METRICS, "error"])
+    for p in points:
+        m = p["metrics"] or {}
+        w.writerow([p["index"], *(p["values"][k] for k in keys), *(m.get(k) for k in METRICS), p["error"] or ""])
+    return buf.getvalue()
+
+
+def _plot(keys, points, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..fileio import save_figure
+
+    shown = ("gd_max_deg", "pa_max", "contrast_nyquist_min", "rms_spot_mean_arcmin")
+    fig, axes = plt.subplots(1, len(shown), figsize=(4.0 * len(shown), 3.3))
+    x_key, rest = keys[0], keys[1:]
+    groups: dict = {}
+    for p in points:
+        groups.setdefault(tuple(p["values"][k] for k in rest), []).append(p)
+    for ax, metric in zip(axes, shown):
+        for g, pts in groups.items():
+            xs = [p["values"][x_key] for p in pts]
+            ys = [np.nan if not p["metrics"] or p["metrics"].get(metric) is None else p["metrics"][metric]
+                  for p in pts]
+            label = ", ".join(f"{k}={v:g}" for k, v in zip(rest, g)) or None
+            ax.plot(xs, ys, "o-", ms=3, label=label)
+        ax.set_xlabel(x_key)
+        ax.set_ylabel(metric)
+        ax.grid(alpha=0.3)
+        if rest and len(groups) <= 8:
+            ax.legend(fontsize=6)
+    fig.tight_layout()
+    save_figure(fig, path, dpi=110)
+    plt.close(fig)
+
+
+def run_sweep(design: Design, out_dir, axes: dict[str, np.ndarray], fixed: dict[str, float] | None = None,
+              stride=None, reference: str | None = None, render: bool = False, render_spec=None,
+              content=None, scheduler: str | None = None, workers: int | None = None, serial: bool = False,
+              batch: int = 1, progress: bool = False, log=None) -> dict:
+    """Evaluate the grid; write ``sweep.json``, ``sweep.csv``, ``sweep.png`` (and focal stacks)."""
+    if not axes:
+        raise ValueError("--set KEY=START:STOP:COUNT: give at least one axis to sweep")
+    if design.ini is None:
+        raise DesignError(design.path or "<dict>", "ini", None, "lfsim sweep needs an [ini] section")
+    path = design.path or "<dict>"
+    raw = apply_overrides(design.raw, dict(fixed or {}), path)
+    if stride is not None:
+        raw = dict(raw)
+        raw["ini"] = dict(raw["ini"])
+        raw["ini"]["analysis"] = {**raw["ini"].get("analysis", {}), "stride": list(stride), "symmetry": "none"}
+    Design.from_dict(raw, path)
+    pts = grid(axes)
+    Design.from_dict(apply_overrides(raw, pts[0], path), path)  # an unknown key is bad input, not a bad point
+    out = Path(out_dir)
+    units = [(f"pt:{i}", p) for i, p in enumerate(pts)]
+    records: dict[str, dict] = {}
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(units), desc="points", unit="pt")
+
+    def on_records(recs):
+        for r in recs:
+            records.setdefault(r["id"], r)
+        if bar:
+            bar.update(len(recs))
+
+    import hashlib
+    import json
+
+    key = hashlib.sha256(json.dumps({"raw": raw, "ref": reference}, sort_keys=True, default=str).encode()).hexdigest()
+    job = {"kind": "sweep", "key": key[:16], "raw": raw, "path": path, "reference": reference, "threads": None}
+    t0 = time.perf_counter()
+    try:
+        where = execute.run(job, units, batch=batch, scheduler=scheduler, workers=workers, serial=serial,
+                            on_records=on_records)
+    finally:
+        if bar:
+            bar.close()
+    seconds = time.perf_counter() - t0
+    keys = list(axes)
+    points = []
+    for i, p in enumerate(pts):
+        r = records[f"pt:{i}"]
+        points.append({"index": i, "values": p, "metrics": r["metrics"], "error": r["error"],
+                       "seconds": r["seconds"]})
+    if render:
+        from ..render.focal_stack import focal_stack
+
+        for p in points:
+            if p["error"]:
+                continue
+            d = Design.from_dict(apply_overrides(raw, p["values"], path), path)
+            sub = out / "points" / f"{p['index']:04d}"
+            index, _ = focal_stack(d, content, sub, render_spec, progress=False, log=lambda *a, **k: None)
+            p["focal_stack"] = {"dir": str(sub.relative_to(out)), "images": [
+                {k: im.get(k) for k in ("kind", "focus_mm", "png", "ssim_vs_natural", "psnr_vs_natural")}
+                for im in index["images"]]}
+    doc = {"design": design.name, "file": design.path, "axes": {k: [float(v) for v in axes[k]] for k in keys},
+           "fixed": dict(fixed or {}), "reference": reference or "self", "points": points,
+           "seconds": round(seconds, 2), "execution": where}
+    write_text(out / "sweep.csv", _table_csv(keys, points))
+    _plot(keys, points, out / "sweep.png")
+    doc["plots"] = ["sweep.png"]
+    write_json(out / "sweep.json", doc)
+    return doc
