@@ -423,27 +423,34 @@ def cmd_gradcheck(args) -> int:
     pupil = args.pupil_mm if args.pupil_mm is not None else view.get("pupil_diameter", 3.0)
     res = _int_pair(args.resolution, "--resolution")
     for flag, v in (("--spp", args.spp), ("--rel-step", args.rel_step), ("--edge-rel-step", args.edge_rel_step),
-                    ("--pupil-mm", pupil), ("--cdp-mm", cdp)):
+                    ("--pupil-mm", pupil), ("--cdp-mm", cdp), ("--tessellation", args.tessellation),
+                    ("--fd-points", args.fd_points)):
+        if v is None and flag in ("--rel-step", "--edge-rel-step", "--fd-points"):
+            continue
         if not (v > 0 and math.isfinite(v) or (flag == "--cdp-mm" and v == math.inf)):
             raise InputError(f"{flag} = {v!r}: must be > 0")
+    if args.display_blur is not None and not (args.display_blur >= 0 and math.isfinite(args.display_blur)):
+        raise InputError(f"--display-blur = {args.display_blur!r}: must be >= 0")
     sweep = tuple(_float_list(args.sweep, "--sweep")) if args.sweep else ()
     view_spec = ViewSpec(focus_mm=[float(f) for f in focus], cdp_mm=cdp, pupil_diameter_mm=float(pupil),
                          resolution=res, spp=args.spp, seed=args.seed, cells=args.mla_cells)
     log = None if args.json else (lambda msg: print(msg, file=sys.stderr))
     doc = run(design, content, names, view_spec, rel_step=args.rel_step, edge_rel_step=args.edge_rel_step,
-              sweep=sweep, log=log)
+              sweep=sweep, log=log, optics=args.optics, tessellation=args.tessellation, fresnel=args.fresnel,
+              display_blur=args.display_blur, fd_points=args.fd_points)
     bad = [p["name"] for p in doc["params"]
-           if (not p["boundary"] and p["rel_err"] > args.tolerance) or p["forward_reverse_rel"] > 1e-6]
+           if (not p["boundary"] and p["rel_err"] > args.tolerance)
+           or p["forward_reverse_rel"] > doc["forward_reverse_tol"]]
     doc["tolerance"], doc["failed"] = args.tolerance, bad
     if args.json:
         print(_dump(doc))
     else:
-        print(f"{design_path} + {args.content}: {res[0]}x{res[1]} px, {args.spp} spp, focus "
+        print(f"{design_path} + {args.content}: {doc['path']} path, {res[0]}x{res[1]} px, {args.spp} spp, focus "
               f"{', '.join(f'{f:g}' for f in focus)} mm, loss {doc['loss']:.6g}")
         print(table(doc))
         s = doc["seconds"]
         print(f"reverse {s['reverse']:.2f} s, forward {s['forward']:.2f} s, finite differences "
-              f"{s['finite_differences']:.2f} s; edge term at {args.edge_rel_step:g} x the step scale; "
+              f"{s['finite_differences']:.2f} s; edge term at {doc['edge_rel_step']:g} x the step scale; "
               + (f"FAILED: {', '.join(bad)}" if bad else f"interior parameters within {args.tolerance:g}"))
     return 1 if bad else 0
 
@@ -747,10 +754,22 @@ def build_parser() -> argparse.ArgumentParser:
     gcp.add_argument("--resolution", default="96,54", help="W,H of the retinal images (default 96,54)")
     gcp.add_argument("--spp", type=int, default=16, help="samples per pixel (default 16)")
     gcp.add_argument("--seed", type=int, default=0)
-    gcp.add_argument("--rel-step", type=float, default=1e-7,
-                     help="central-difference step relative to max(|value|, unit floor) (default 1e-7)")
-    gcp.add_argument("--edge-rel-step", type=float, default=1e-3,
-                     help="relative step at which the edge (boundary) term is measured (default 1e-3)")
+    gcp.add_argument("--optics", choices=("analytic", "mesh"), default="analytic",
+                     help="differentiate the analytic display path (default) or the path-traced optics meshes "
+                          "(Dr.Jit-generated vertices, specular-chain AD integrator, float32)")
+    gcp.add_argument("--tessellation", type=float, default=0.25,
+                     help="mesh path: mesh density x the default segment counts (default 0.25)")
+    gcp.add_argument("--fresnel", action="store_true",
+                     help="mesh path: interfaces refract with weight 1 - F (default: weight 1)")
+    gcp.add_argument("--display-blur", type=float, default=None,
+                     help="Gaussian sigma (display pixels) applied to the elemental images (default 0; mesh 2)")
+    gcp.add_argument("--rel-step", type=float, default=None,
+                     help="central-difference step relative to max(|value|, unit floor) "
+                          "(default 1e-7; mesh path 1e-3)")
+    gcp.add_argument("--fd-points", type=int, default=None,
+                     help="points per side of the main difference, least-squares slope (default 1; mesh 4)")
+    gcp.add_argument("--edge-rel-step", type=float, default=None,
+                     help="relative step at which the edge (boundary) term is measured (default 1e-3; mesh 1e-2)")
     gcp.add_argument("--sweep", help="further relative steps to report, comma separated (e.g. 1e-5,1e-6)")
     gcp.add_argument("--tolerance", type=float, default=0.02,
                      help="largest relative error of an interior parameter (default 0.02); exit 1 beyond")

@@ -9,12 +9,15 @@ work for light arriving from either side. Register them with
 ``lfsim_interface``
     Properties ``int_ior`` and ``ext_ior`` (floats; ``ext_ior`` is the index
     on the side the shading normal points to, as in Mitsuba's ``dielectric``).
-    Always refracts with weight 1 (Snell's law, no Fresnel branch, so no
-    sampling noise) and reflects, also with weight 1, only under total
-    internal reflection. Both indices are differentiable parameters
-    (``mi.traverse`` keys ``….bsdf.int_ior`` / ``….bsdf.ext_ior``). The
-    radiance scaling by η² of a real interface is left out: it cancels on
-    any path that enters and leaves the same medium.
+    Always refracts (Snell's law, no Fresnel branch, so no sampling noise)
+    and reflects, with weight 1, only under total internal reflection. The
+    refraction weight is 1 by default, or the Fresnel transmittance 1 − F
+    (unpolarized, ``mi.fresnel``) with ``fresnel = true``, which makes the
+    image depend on the indices through the transmission loss too. Both
+    indices are differentiable parameters (``mi.traverse`` keys
+    ``….bsdf.int_ior`` / ``….bsdf.ext_ior``). The radiance scaling by η² of
+    a real interface is left out: it cancels on any path that enters and
+    leaves the same medium.
 
 ``lfsim_thinlens``
     Ideal thin lens of power ``power`` (1/mm) in a medium of index ``ior``,
@@ -65,14 +68,17 @@ def _classes(mi, dr):
             pass
 
     class InterfaceBSDF(DeltaBSDF):
-        """Dielectric interface: refraction with weight 1, reflection only on TIR."""
+        """Dielectric interface: refraction with weight 1 (or 1 − F), reflection only on TIR."""
 
         def __init__(self, props):
             mi.BSDF.__init__(self, props)
             self.int_ior = mi.Float(props.get("int_ior", 1.5046))
             self.ext_ior = mi.Float(props.get("ext_ior", 1.0))
+            self.fresnel = bool(props.get("fresnel", False))
             self.spec = {"type": INTERFACE, "int_ior": float(props.get("int_ior", 1.5046)),
                          "ext_ior": float(props.get("ext_ior", 1.0))}
+            if self.fresnel:
+                self.spec["fresnel"] = True
             self.m_components = [delta_r | sides, delta_t | sides]
             self.m_flags = delta_r | delta_t | sides
 
@@ -95,14 +101,20 @@ def _classes(mi, dr):
             bs.eta = dr.select(tir, 1.0, eta)
             bs.sampled_type = dr.select(tir, mi.UInt32(+delta_r), mi.UInt32(+delta_t))
             bs.sampled_component = dr.select(tir, mi.UInt32(0), mi.UInt32(1))
-            return bs, dr.select(active, mi.Color3f(1.0), mi.Color3f(0.0))
+            w = mi.Float(1.0)
+            if self.fresnel:
+                # mi.fresnel takes eta = n_int / n_ext and the cosine on the ext side's sign.
+                F, _, _, _ = mi.fresnel(cos_i, self.int_ior / self.ext_ior)
+                w = dr.select(tir, 1.0, 1.0 - F)
+            return bs, dr.select(active, mi.Color3f(w), mi.Color3f(0.0))
 
         def traverse(self, cb):
             cb.put("int_ior", self.int_ior, mi.ParamFlags.Differentiable)
             cb.put("ext_ior", self.ext_ior, mi.ParamFlags.Differentiable)
 
         def to_string(self):
-            return f"InterfaceBSDF[int_ior={self.spec['int_ior']}, ext_ior={self.spec['ext_ior']}]"
+            return (f"InterfaceBSDF[int_ior={self.spec['int_ior']}, ext_ior={self.spec['ext_ior']}, "
+                    f"fresnel={self.fresnel}]")
 
     class ThinLensBSDF(DeltaBSDF):
         """Ideal thin lens (array) on a plane whose UVs are the local (x, y)."""
@@ -183,9 +195,13 @@ def register():
     return mi
 
 
-def interface(int_ior: float, ext_ior: float) -> dict:
-    """Scene dict of an ``lfsim_interface`` BSDF (``ext_ior`` on the normal's side)."""
-    return {"type": INTERFACE, "int_ior": float(int_ior), "ext_ior": float(ext_ior)}
+def interface(int_ior: float, ext_ior: float, fresnel: bool = False) -> dict:
+    """Scene dict of an ``lfsim_interface`` BSDF (``ext_ior`` on the normal's side;
+    ``fresnel``: refraction weight 1 − F instead of 1)."""
+    out = {"type": INTERFACE, "int_ior": float(int_ior), "ext_ior": float(ext_ior)}
+    if fresnel:
+        out["fresnel"] = True
+    return out
 
 
 def thin_lens(power: float, ior: float, rotation: np.ndarray, array=None) -> dict:

@@ -20,6 +20,11 @@ parameters θ_k, :func:`gradcheck` reports
 * ``boundary``: true when some samples crossed an edge at the edge step and
   the edge term is at least :data:`BOUNDARY_SHARE` of the full derivative.
 
+The renderer is the analytic path or the mesh path
+(:class:`lfsim.render.mesh_ad.MeshRenderer`, float32 Mitsuba arithmetic: its
+differences use larger steps and a least-squares slope over several, see
+:func:`difference`).
+
 Loss: ``L = Σ_focus mean_pixels (I − R)²`` against a target R (by default the
 natural view of the content through the same eye), which is smooth in the
 image.
@@ -167,40 +172,60 @@ def _numpy_loss(loss, samples) -> float:
     return total
 
 
-def difference(loss: RenderLoss, values, i: int, h: float) -> Difference:
+def difference(loss: RenderLoss, values, i: int, h: float, points: int = 1) -> Difference:
     """Central difference of parameter ``i`` at step ``h``, with its interior part.
 
-    A sample's path changed when its tracer status or visibility differs among
-    θ − h, θ, θ + h, or its display hit jumps (second difference larger than a
-    quarter display pixel: another lenslet cell). ``fd_interior`` keeps those
-    samples at their θ value, so it is the difference of the continuous part
-    of the integrand, which AD must match; ``fd − fd_interior`` is the edge term.
+    A sample's path changed when its tracer status (mesh path: the sequence
+    of shapes met) or visibility differs among the evaluated points, or its
+    display hit jumps (second difference larger than a quarter display pixel:
+    another lenslet cell). ``fd_interior`` keeps those samples at their θ
+    value, so it is the difference of the continuous part of the integrand,
+    which AD must match; ``fd − fd_interior`` is the edge term.
+
+    ``points`` > 1: the least-squares slope through θ ± j·h, j = 1 … points
+    (the weighted mean Σ j² D_j / Σ j² of the central differences D_j at
+    steps j·h; exact for polynomials up to degree 2 like a single central
+    difference). It averages out the rounding noise of float32 renders
+    (mesh path), which does not shrink with h.
     """
     r = loss.r
     v0 = np.asarray(values, dtype=np.float64)
-    vp, vm = v0.copy(), v0.copy()
-    vp[i] += h
-    vm[i] -= h
+    js = list(range(1, int(points) + 1))
     tol = 0.25 * r.layout.pixel_pitch
-    fm_all, fp_all, fmi, fpi, n = [], [], [], [], 0
+    L_all = {j: [[], []] for j in js}
+    L_int = {j: [[], []] for j in js}
+    n = 0
     for k in range(len(r.view.focus_mm)):
-        xm, ym, okm, sm, fm = _batch_numpy(r, vm, k)
         x0, y0, ok0, s0, f0 = _batch_numpy(r, v0, k)
-        xp, yp, okp, sp, fp = _batch_numpy(r, vp, k)
-        jump = (okm | ok0 | okp) & (np.hypot(xp - 2 * x0 + xm, yp - 2 * y0 + ym) > tol)
-        flip = (okm != ok0) | (okp != ok0) | (sm != s0) | (sp != s0) | jump
+        evals = {}
+        for j in js:
+            for sgn in (-1, 1):
+                v = v0.copy()
+                v[i] += sgn * j * h
+                evals[(j, sgn)] = _batch_numpy(r, v, k)
+        flip = np.zeros(len(x0), dtype=bool)
+        for j in js:
+            xm, ym, okm, sm, _ = evals[(j, -1)]
+            xp, yp, okp, sp, _ = evals[(j, 1)]
+            jump = (okm | ok0 | okp) & (np.hypot(xp - 2 * x0 + xm, yp - 2 * y0 + ym) > tol)
+            flip |= (okm != ok0) | (okp != ok0) | (sm != s0) | (sp != s0) | jump
         n += int(np.count_nonzero(flip))
-        fm_all.append(fm)
-        fp_all.append(fp)
-        fmi.append(np.where(flip[:, None], f0, fm))
-        fpi.append(np.where(flip[:, None], f0, fp))
-    fd = (_numpy_loss(loss, fp_all) - _numpy_loss(loss, fm_all)) / (2 * h)
-    fdi = (_numpy_loss(loss, fpi) - _numpy_loss(loss, fmi)) / (2 * h)
-    return Difference(h, fd, fdi, n)
+        for j in js:
+            for side, sgn in enumerate((-1, 1)):
+                f = evals[(j, sgn)][4]
+                L_all[j][side].append(f)
+                L_int[j][side].append(np.where(flip[:, None], f0, f))
+
+    def slope(L):
+        num = sum(j * j * (_numpy_loss(loss, L[j][1]) - _numpy_loss(loss, L[j][0])) / (2 * j * h) for j in js)
+        return num / sum(j * j for j in js)
+
+    return Difference(h, slope(L_all), slope(L_int), n)
 
 
 def gradcheck(renderer, targets, names: list[str], values=None, rel_step: float = REL_STEP,
-              edge_rel_step: float = EDGE_REL_STEP, sweep: tuple[float, ...] = (), log=None) -> dict:
+              edge_rel_step: float = EDGE_REL_STEP, sweep: tuple[float, ...] = (), log=None,
+              fd_points: int = 1) -> dict:
     """Compare AD (reverse and forward) with central differences for ``names``.
 
     Returns ``{"loss", "params": [...], "seconds": {...}}``. Each parameter record:
@@ -215,9 +240,13 @@ def gradcheck(renderer, targets, names: list[str], values=None, rel_step: float 
     boundary_term)``, the share of the full derivative that AD misses;
     ``boundary`` (see the module docstring); ``forward_reverse_rel``; with
     ``sweep`` (relative steps), ``fd_sweep`` [{``rel_step``, ``step``, ``fd``,
-    ``fd_interior``, ``boundary_term``, ``edge_samples``}].
+    ``fd_interior``, ``boundary_term``, ``edge_samples``}]. ``fd_points``: points
+    per side of the main difference (see :func:`difference`; the edge term
+    always uses one).
     """
     r = renderer
+    if fd_points < 1:
+        raise ValueError(f"fd_points = {fd_points!r}: expected >= 1")
     unknown = [n for n in names if n not in r.index]
     if unknown:
         raise ValueError(f"unknown parameter(s) {', '.join(unknown)}: see `lfsim params DESIGN` "
@@ -237,7 +266,7 @@ def gradcheck(renderer, targets, names: list[str], values=None, rel_step: float 
         ad_f = directional(loss, e, v0)
         t_fwd += time.perf_counter() - t0
         t0 = time.perf_counter()
-        main = difference(loss, v0, i, fd_step(name, v0[i], units[i], rel_step))
+        main = difference(loss, v0, i, fd_step(name, v0[i], units[i], rel_step), fd_points)
         edge = difference(loss, v0, i, fd_step(name, v0[i], units[i], edge_rel_step))
         sw = [(rel, difference(loss, v0, i, fd_step(name, v0[i], units[i], rel))) for rel in sweep]
         t_fd += time.perf_counter() - t0
@@ -274,35 +303,86 @@ def _units(r) -> list[str]:
     return [table.get(n, "mm") for n in r.names]
 
 
-def run(design, content, names: list[str], view, rel_step: float = REL_STEP,
-        edge_rel_step: float = EDGE_REL_STEP, sweep: tuple[float, ...] = (), precision: str = "float64",
-        target_spp: int | None = None, log=None) -> dict:
-    """Gradient check of the analytic display path for ``design`` showing ``content``.
+#: Mesh path defaults (float32 Mitsuba arithmetic): the relative step of the main
+#: difference, its points per side (least-squares slope) and the edge step.
+MESH_REL_STEP = 1e-3
+MESH_FD_POINTS = 4
+MESH_EDGE_REL_STEP = 1e-2
+#: Mesh path: Gaussian σ (display pixels) of the display image. Float32 forces
+#: differences whose steps move display hits by 0.1–0.5 pixel; with binary
+#: elemental images the bilinear kinks then dominate them (measured: 7–95 %
+#: off on ini_coaxial), with σ = 2 px they are smooth at that scale.
+MESH_DISPLAY_BLUR = 2.0
+#: Largest forward/reverse disagreement accepted, per path (float64 / float32 renders).
+FORWARD_REVERSE_TOL = {"analytic": 1e-6, "mesh": 1e-4}
 
-    Builds an :class:`~lfsim.render.diff_render.AnalyticRenderer` for ``view``
-    (a :class:`~lfsim.render.diff_render.ViewSpec`), renders the natural view
+
+def run(design, content, names: list[str], view, rel_step: float | None = None,
+        edge_rel_step: float | None = None, sweep: tuple[float, ...] = (), precision: str = "float64",
+        target_spp: int | None = None, log=None, optics: str = "analytic", tessellation: float = 0.25,
+        fresnel: bool = False, display_blur: float | None = None, fd_points: int | None = None) -> dict:
+    """Gradient check of the analytic (or mesh) display path for ``design`` showing ``content``.
+
+    Builds an :class:`~lfsim.render.diff_render.AnalyticRenderer` (``optics
+    = "analytic"``) or a :class:`~lfsim.render.mesh_ad.MeshRenderer`
+    (``"mesh"``: Mitsuba meshes at ``tessellation`` × the default density,
+    path-traced by the specular-chain integrator, float32; ``fresnel``:
+    interfaces weigh refraction by 1 − F) for ``view`` (a
+    :class:`~lfsim.render.diff_render.ViewSpec`), renders the natural view
     of the content through the same eye as the target (``target_spp``,
-    default 4 × the view's spp) and calls :func:`gradcheck`. The returned
-    document adds the settings (``design``, ``content``, ``resolution``,
-    ``spp``, ``focus_mm``, ``cdp_mm``, ``pupil_mm``, ``seed``, ``cells``,
-    ``precision``, ``rel_step``, ``edge_rel_step``) and ``setup_s``.
+    default 4 × the view's spp) and calls :func:`gradcheck`.
+    ``display_blur``: Gaussian σ (display pixels) applied to the elemental
+    images (default 0; mesh: :data:`MESH_DISPLAY_BLUR`). Steps default to the path's (:data:`REL_STEP`,
+    :data:`EDGE_REL_STEP`; mesh: :data:`MESH_REL_STEP` with
+    :data:`MESH_FD_POINTS` points per side, :data:`MESH_EDGE_REL_STEP`). The
+    returned document adds the settings (``design``, ``content``, ``path``,
+    ``resolution``, ``spp``, ``focus_mm``, ``cdp_mm``, ``pupil_mm``,
+    ``seed``, ``cells``, ``precision``, ``rel_step``, ``edge_rel_step``,
+    ``fd_points``, mesh: ``tessellation``, ``fresnel``) and ``setup_s``.
     """
     from .diff_render import AnalyticRenderer
 
+    if optics not in ("analytic", "mesh"):
+        raise ValueError(f"optics = {optics!r}: expected 'analytic' or 'mesh'")
+    mesh = optics == "mesh"
+    rel_step = rel_step if rel_step is not None else (MESH_REL_STEP if mesh else REL_STEP)
+    edge_rel_step = edge_rel_step if edge_rel_step is not None else (MESH_EDGE_REL_STEP if mesh else EDGE_REL_STEP)
+    fd_points = int(fd_points if fd_points is not None else (MESH_FD_POINTS if mesh else 1))
+    display_blur = float(display_blur if display_blur is not None else (MESH_DISPLAY_BLUR if mesh else 0.0))
     t0 = time.perf_counter()
-    r = AnalyticRenderer(design, view, content=content, precision=precision)
+    display = None
+    if display_blur > 0 or mesh:
+        base = AnalyticRenderer(design, view, content=content, precision=precision)
+        display = base.display
+        if display_blur > 0:
+            from scipy.ndimage import gaussian_filter
+
+            display = gaussian_filter(display, (display_blur, display_blur, 0), mode="nearest")
+    if mesh:
+        from .meshes import tessellation as _tess
+        from .mesh_ad import MeshRenderer
+
+        r = MeshRenderer(design, view, display=display, tessellation=_tess(tessellation), fresnel=fresnel)
+        precision = "float32"
+    elif display is not None:
+        r = AnalyticRenderer(design, view, display=display, precision=precision)
+    else:
+        r = AnalyticRenderer(design, view, content=content, precision=precision)
     unknown = [n for n in names if n not in r.index]
     if unknown:
         raise ValueError(f"--param {','.join(unknown)}: not a parameter of {design.path or design.name} "
                          "(lfsim params DESIGN lists them; object.distance is the display gap)")
     targets = natural_targets(r, content, spp=target_spp or 4 * view.spp, seed=view.seed + 1)
     setup = time.perf_counter() - t0
-    doc = gradcheck(r, targets, names, rel_step=rel_step, edge_rel_step=edge_rel_step, sweep=sweep, log=log)
+    doc = gradcheck(r, targets, names, rel_step=rel_step, edge_rel_step=edge_rel_step, sweep=sweep, log=log,
+                    fd_points=fd_points)
+    extra = {"tessellation": tessellation, "fresnel": bool(fresnel)} if mesh else {}
     doc = {"design": design.path or design.name, "content": getattr(content, "path", None),
-           "path": "analytic", "resolution": [r.W, r.H], "spp": r.spp, "focus_mm": list(view.focus_mm),
-           "cdp_mm": view.cdp_mm, "pupil_mm": view.pupil_diameter_mm, "seed": view.seed, "cells": view.cells,
-           "precision": precision, "rel_step": rel_step, "edge_rel_step": edge_rel_step,
-           "setup_s": round(setup, 3), **doc}
+           "path": optics, **extra, "display_blur": display_blur, "resolution": [r.W, r.H], "spp": r.spp,
+           "focus_mm": list(view.focus_mm), "cdp_mm": view.cdp_mm, "pupil_mm": view.pupil_diameter_mm,
+           "seed": view.seed, "cells": view.cells, "precision": precision, "rel_step": rel_step,
+           "edge_rel_step": edge_rel_step, "fd_points": fd_points,
+           "forward_reverse_tol": FORWARD_REVERSE_TOL[optics], "setup_s": round(setup, 3), **doc}
     return doc
 
 
