@@ -2,11 +2,12 @@
 
 Runs :func:`lfsim.tolerance.monte_carlo.run_tolerance` (the same as
 ``lfsim tolerance``) on the same trials of a design's ``[tolerance]`` section
-three ways — ``serial`` (this process, Dr.Jit on every core), a local cluster
+four ways — ``serial`` (this process, Dr.Jit on every core), a local cluster
 of 1 worker process (Dr.Jit on every core) and of 2 worker processes (one
-Dr.Jit thread each) — checks that all three give identical records, prints
-trials per second, the ratio local cluster / serial and the scaling from 1 to
-2 workers, and writes ``benchmarks/results/tolerance_throughput.json``.
+Dr.Jit thread each), each with the trials of a batch traced together, and
+``serial, unfused`` (batch 1: one trial per launch) — checks that all four
+give identical records, prints trials per second, the ratio local cluster /
+serial, the scaling from 1 to 2 workers and the gain of tracing a batch together, and writes ``benchmarks/results/tolerance_throughput.json``.
 
 Two rates per run: *wall* counts everything from the call to the last record
 (cluster start-up, each worker's imports and kernel compilation), *steady*
@@ -65,9 +66,12 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     design = lfsim.load(args.design)
     rows, recs = [], []
-    for label, where in (("serial", {"serial": True}), ("local, 1 worker", {"workers": 1}),
-                         ("local, 2 workers", {"workers": 2})):
-        row, rec = measure(design, args.trials, args.batch, **where)
+    for label, where, batch in (("serial", {"serial": True}, args.batch),
+                                ("local, 1 worker", {"workers": 1}, args.batch),
+                                ("local, 2 workers", {"workers": 2}, args.batch),
+                                ("serial, unfused", {"serial": True}, 1)):
+        row, rec = measure(design, args.trials, batch, **where)
+        row["batch"] = batch
         row["label"] = label
         rows.append(row)
         recs.append(rec)
@@ -76,7 +80,7 @@ def main(argv=None) -> int:
               f"{row['trial_s_mean']:.2f} s/trial/worker", flush=True)
     fields = ("offsets", "metrics", "compensators", "pass")
     identical = all(recs[0][k][f] == r[k][f] for r in recs[1:] for k in recs[0] for f in fields)
-    s, l1, l2 = rows
+    s, l1, l2, s1 = rows
     doc = {
         "design": args.design, "trials": args.trials, "batch": args.batch, "runs": rows,
         "identical_records": identical,
@@ -84,6 +88,7 @@ def main(argv=None) -> int:
         "ratio_local2_over_serial_steady": l2["trials_per_s_steady"] / s["trials_per_s_steady"],
         "scaling_2_over_1_workers_wall": l2["trials_per_s_wall"] / l1["trials_per_s_wall"],
         "scaling_2_over_1_workers_steady": l2["trials_per_s_steady"] / l1["trials_per_s_steady"],
+        "fused_over_unfused_serial_wall": s["trials_per_s_wall"] / s1["trials_per_s_wall"],
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform()},
     }
     out = ROOT / "benchmarks" / "results" / "tolerance_throughput.json"
@@ -92,7 +97,9 @@ def main(argv=None) -> int:
           f"{doc['ratio_local2_over_serial_steady']:.2f} (steady)")
     print(f"2 workers / 1 worker: {doc['scaling_2_over_1_workers_wall']:.2f} (wall), "
           f"{doc['scaling_2_over_1_workers_steady']:.2f} (steady)")
-    print(f"identical records in all three runs: {identical}; wrote {out.relative_to(ROOT)}")
+    print(f"batch of {args.batch} traced together / one trial per launch (serial): "
+          f"{doc['fused_over_unfused_serial_wall']:.2f} (wall)")
+    print(f"identical records in all four runs: {identical}; wrote {out.relative_to(ROOT)}")
     return 0 if identical else 1
 
 

@@ -65,7 +65,7 @@ def _paraxial(model: IniModel, subs, rho: np.ndarray) -> np.ndarray:
 
 
 def evaluate(model: IniModel, subs=None, progress: bool = False, mtf_freqs_cpd=None,
-             reference: IniModel | None = None, refine: int | None = None) -> dict:
+             reference: IniModel | None = None, refine: int | None = None, bundle: Bundle | None = None) -> dict:
     """Trace and measure; returns a dict of numpy arrays and the summary (see :func:`analyze`).
 
     ``reference``: the nominal design's model. By default a design is its own
@@ -79,6 +79,11 @@ def evaluate(model: IniModel, subs=None, progress: bool = False, mtf_freqs_cpd=N
 
     ``refine``: levels of the worst-contrast search of :func:`refine_contrast`
     (default the design's ``[ini.analysis] refine``; 0: the field grid only).
+
+    ``bundle``: the rays of ``subs`` already traced (by
+    :func:`lfsim.ini.subsystems.trace_many`, several designs in one launch)
+    with the pupil samples of :meth:`PupilSets.build` for this design's
+    ``[ini.analysis]``; they are then not traced again.
     """
     spec = model.spec
     ref = model if reference is None else reference
@@ -94,7 +99,10 @@ def evaluate(model: IniModel, subs=None, progress: bool = False, mtf_freqs_cpd=N
         from tqdm import tqdm
 
         bar = tqdm(total=len(subs), desc="sub-systems", unit="sub", leave=False)
-    bundle: Bundle = trace(model, subs, sets.rho, progress=bar.update if bar else None)
+    if bundle is None:
+        bundle = trace(model, subs, sets.rho, progress=bar.update if bar else None)
+    elif bundle.subs is not subs or not np.array_equal(bundle.rho, sets.rho):
+        raise ValueError("evaluate: the bundle was traced for other sub-systems or pupil samples")
     if bar:
         bar.close()
     t_trace = time.perf_counter() - t0

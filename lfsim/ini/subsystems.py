@@ -149,35 +149,54 @@ def trace(model: IniModel, subs: Subsystems, rho: np.ndarray, aim_iterations: in
     ``rho`` (R, 2) are pupil points in units of the stop half-widths. Launches
     hold at most ``max_rays`` rays (whole sub-systems each).
     """
+    return trace_many([model], subs, rho, aim_iterations, max_rays, progress)[0]
+
+
+def trace_many(models: list[IniModel], subs: Subsystems, rho: np.ndarray, aim_iterations: int = 30,
+               max_rays: int = 2_000_000, progress=None) -> list[Bundle]:
+    """:func:`trace` of the same sub-systems in several designs, fused into shared launches.
+
+    ``models`` are InI models of designs with the same surfaces and parameter
+    table (e.g. the perturbed copies of one design in a tolerance run); their
+    parameter vectors are stacked as blocks of one packed array and every ray
+    carries its design's block, so one kernel launch traces all of them. Each
+    design's rays are aimed with its own first-order data and stop, and stop
+    their Newton steps when that design's rays have converged, so every
+    design's bundle is bit for bit the bundle :func:`trace` gives it alone.
+    Returns one :class:`Bundle` per model.
+    """
     rho = np.asarray(rho, dtype=np.float64).reshape(-1, 2)
+    K = len(models)
     S, F, R = len(subs), subs.display.shape[1], len(rho)
-    per_sub = F * R
+    per_sub = F * R * K
     step = max(1, max_rays // per_sub)
-    pos = np.empty((S, F, R, 2))
-    dirs = np.empty((S, F, R, 3))
-    opl = np.empty((S, F, R))
-    status = np.empty((S, F, R), dtype=np.int64)
-    worst = 0.0
+    pos = np.empty((K, S, F, R, 2))
+    dirs = np.empty((K, S, F, R, 3))
+    opl = np.empty((K, S, F, R))
+    status = np.empty((K, S, F, R), dtype=np.int64)
+    worst = np.zeros(K)
     for a in range(0, S, step):
         b = min(S, a + step)
-        out = _trace_chunk(model, subs, slice(a, b), rho, aim_iterations)
-        pos[a:b], dirs[a:b], opl[a:b], status[a:b], err = out
-        worst = max(worst, err)
+        out = _trace_chunk(models, subs, slice(a, b), rho, aim_iterations)
+        pos[:, a:b], dirs[:, a:b], opl[:, a:b], status[:, a:b], err = out
+        worst = np.maximum(worst, err)
         if progress is not None:
             progress(b - a)
-    return Bundle(subs, rho, pos, dirs, opl, status, worst)
+    return [Bundle(subs, rho, pos[u], dirs[u], opl[u], status[u], float(worst[u])) for u in range(K)]
 
 
-def _trace_chunk(model: IniModel, subs: Subsystems, sl: slice, rho: np.ndarray, iterations: int):
+def _trace_chunk(models: list[IniModel], subs: Subsystems, sl: slice, rho: np.ndarray, iterations: int):
     s = subs.display[sl]  # (s, F, 2); lenslet centres follow from (m, n)
     ns, F, R = s.shape[0], s.shape[1], len(rho)
-    shape = (ns, F, R)
-    s_r = np.broadcast_to(s[:, :, None, :], shape + (2,)).reshape(-1, 2)
-    rho_r = np.broadcast_to(rho[None, None, :, :], shape + (2,)).reshape(-1, 2)
-    m_r = np.broadcast_to(subs.m[sl][:, None, None], shape).ravel()
-    n_r = np.broadcast_to(subs.n[sl][:, None, None], shape).ravel()
-    k_r = np.broadcast_to(subs.k[sl][:, None, None], shape).ravel()
-    pl, dl, opl, status, worst = trace_rays(model, s_r, m_r, n_r, rho_r, k_r, iterations)
+    K = len(models)
+    shape = (K, ns, F, R)
+    s_r = np.broadcast_to(s[None, :, :, None, :], shape + (2,)).reshape(-1, 2)
+    rho_r = np.broadcast_to(rho[None, None, None, :, :], shape + (2,)).reshape(-1, 2)
+    m_r = np.broadcast_to(subs.m[sl][None, :, None, None], shape).ravel()
+    n_r = np.broadcast_to(subs.n[sl][None, :, None, None], shape).ravel()
+    k_r = np.broadcast_to(subs.k[sl][None, :, None, None], shape).ravel()
+    u_r = np.broadcast_to(np.arange(K)[:, None, None, None], shape).ravel()
+    pl, dl, opl, status, worst = trace_rays_many(models, u_r, s_r, m_r, n_r, rho_r, k_r, iterations)
     return (pl.reshape(shape + (2,)), dl.reshape(shape + (3,)), opl.reshape(shape),
             status.reshape(shape), worst)
 
@@ -195,15 +214,40 @@ def trace_rays(model: IniModel, s, m, n, rho, k, iterations: int = 30):
     (failed rays: 0 and +z), the optical path (mm), the tracer status, and the
     largest stop miss of a surviving ray (mm).
     """
-    tr, T = model.tracer, model.T
-    sp = model.spec
-    s_r, m_r, n_r, k_r, t, err = _aim(model, s, m, n, rho, k, iterations)
-    P = tr.params(values=model.values())
-    block = from_numpy(T.UInt32, k_r)
+    s = np.asarray(s, dtype=np.float64).reshape(-1, 2)
+    pl, dl, opl, status, worst = trace_rays_many([model], np.zeros(len(s), dtype=np.int64), s, m, n, rho, k,
+                                                 iterations)
+    return pl, dl, opl, status, float(worst[0])
+
+
+def _stack(models: list[IniModel]):
+    """The packed parameters of ``models`` (block ``u·states + k``) and their common tracer."""
+    tr = models[0].tracer
+    for mo in models[1:]:
+        if (mo.tracer.n_params != tr.n_params or mo.tracer.names != tr.names
+                or len(mo.depths) != len(models[0].depths)):
+            raise ValueError(f"{mo.file}: cannot share launches with {models[0].file} "
+                             "(another parameter table or CDP state count)")
+    P = tr.params(values=np.concatenate([mo.values() for mo in models]))
+    return tr, P, len(models[0].depths)
+
+
+def trace_rays_many(models: list[IniModel], u, s, m, n, rho, k, iterations: int = 30):
+    """:func:`trace_rays` for rays of several designs in one launch: ray i belongs to ``models[u[i]]``.
+
+    Returns ``(pos, dir, opl, status, aim_error (K,))``, the largest stop
+    miss per model.
+    """
+    sp = models[0].spec
+    tr, P, nk = _stack(models)
+    T = tr.T
+    u = np.asarray(u, dtype=np.int64).reshape(-1)
+    s_r, m_r, n_r, k_r, t, err = _aim_many(models, u, s, m, n, rho, k, iterations, (tr, P, nk))
+    block = from_numpy(T.UInt32, (u * nk + k_r).astype(np.uint32))
     lens = from_numpy(T.Int32, m_r, n_r)
-    z0 = -model.g
+    z0 = np.array([-mo.g for mo in models])[u]
     with dr.suspend_grad():
-        o = np.column_stack([s_r, np.full(len(t), z0)])
+        o = np.column_stack([s_r, z0])
         d = np.column_stack([t, np.ones(len(t))])
         out = tr.trace(P, tr.rays(o, d), block=block, lenslet=lens, first=0, last=sp.viewing_window)
         dr.eval(out.p, out.d, out.opl, out.status)
@@ -211,13 +255,18 @@ def trace_rays(model: IniModel, s, m, n, rho, k, iterations: int = 30):
         dd = np.stack([np.asarray(out.d.x), np.asarray(out.d.y), np.asarray(out.d.z)], axis=1)
         opl = np.asarray(out.opl, dtype=np.float64)
         status = np.asarray(out.status).astype(np.int64)
-    pl = (p - model.o_vw) @ model.R_vw
-    dl = dd @ model.R_vw
+    pl = np.empty_like(p)
+    dl = np.empty_like(dd)
+    for j, mo in enumerate(models):
+        sel = u == j
+        pl[sel] = (p[sel] - mo.o_vw) @ mo.R_vw
+        dl[sel] = dd[sel] @ mo.R_vw
     ok = status == 0
     pl = np.where(ok[:, None], pl, 0.0)
     dl = np.where(ok[:, None], dl, np.array([0.0, 0.0, 1.0]))
     opl = np.where(ok, opl, 0.0)
-    worst = float(np.max(np.abs(err[ok]))) if np.any(ok) else 0.0
+    worst = np.array([float(np.max(np.abs(err[ok & (u == j)]))) if np.any(ok & (u == j)) else 0.0
+                      for j in range(len(models))])
     return pl[:, :2], dl, opl, status, worst
 
 
@@ -225,36 +274,64 @@ def _aim(model: IniModel, s, m, n, rho, k, iterations: int):
     """Launch slopes that put each ray on its pupil point of its lenslet's stop
     (paraxial aim, then real-ray Newton steps with the paraxial stop map as the
     Jacobian). Returns the flat inputs, the slopes (N, 2) and the stop miss."""
-    tr, T = model.tracer, model.T
-    sp = model.spec
+    s = np.asarray(s, dtype=np.float64).reshape(-1, 2)
+    return _aim_many([model], np.zeros(len(s), dtype=np.int64), s, m, n, rho, k, iterations)
+
+
+def _aim_many(models: list[IniModel], u, s, m, n, rho, k, iterations: int, stacked=None):
+    """:func:`_aim` for rays of several designs (ray i of ``models[u[i]]``) in shared launches.
+
+    Each design takes Newton steps until its own rays have converged (then its
+    slopes are frozen), so its rays get exactly the steps they would get alone.
+    """
+    tr, P, nk = stacked or _stack(models)
+    T = tr.T
+    sp = models[0].spec
+    K = len(models)
     s_r = np.asarray(s, dtype=np.float64).reshape(-1, 2)
+    u = np.broadcast_to(np.asarray(u, dtype=np.int64), len(s_r))
     rho_r = np.broadcast_to(np.asarray(rho, dtype=np.float64), s_r.shape)
     m_r = np.broadcast_to(np.asarray(m), len(s_r)).astype(np.int32)
     n_r = np.broadcast_to(np.asarray(n), len(s_r)).astype(np.int32)
     k_r = np.broadcast_to(np.asarray(k), len(s_r)).astype(np.uint32)
-    c_r = model.lenslet_center(m_r, n_r)
-    t = model.aim(s_r, c_r, rho_r)
-    target = rho_r * model.stop_half
-    JSt_inv = np.linalg.inv(model.JS[:, 2:])
-    P = tr.params(values=model.values())
-    block = from_numpy(T.UInt32, k_r)
+    sel = [u == j for j in range(K)]
+    c_r = np.empty_like(s_r)
+    t = np.empty_like(s_r)
+    target = np.empty_like(s_r)
+    JSt_inv = np.empty((len(s_r), 2, 2))
+    R_s = np.empty((len(s_r), 3, 3))
+    o_s = np.empty((len(s_r), 3))
+    for j, mo in enumerate(models):
+        q = sel[j]
+        c_r[q] = mo.lenslet_center(m_r[q], n_r[q])
+        t[q] = mo.aim(s_r[q], c_r[q], rho_r[q])
+        target[q] = rho_r[q] * mo.stop_half
+        JSt_inv[q] = np.linalg.inv(mo.JS[:, 2:]).T
+        R_s[q], o_s[q] = mo.tracer.frames_numpy()[sp.stop]
+    block = from_numpy(T.UInt32, (u * nk + k_r).astype(np.uint32))
     lens = from_numpy(T.Int32, m_r, n_r)
-    z0 = -model.g
-    R_s, o_s = tr.frames_numpy()[sp.stop]
-    err = np.zeros(len(t))
+    z0 = np.array([-mo.g for mo in models])[u]
+    err = np.zeros((len(t), 2))
+    moving = np.ones(K, dtype=bool)
     with dr.suspend_grad():
         for _ in range(iterations):
-            o = np.column_stack([s_r, np.full(len(t), z0)])
+            o = np.column_stack([s_r, z0])
             d = np.column_stack([t, np.ones(len(t))])
             out = tr.trace(P, tr.rays(o, d), block=block, lenslet=lens, first=0, last=sp.stop, clip=False)
             hit = np.stack([np.asarray(out.p.x), np.asarray(out.p.y), np.asarray(out.p.z)], axis=1)
-            local = (hit - o_s) @ R_s
+            local = np.einsum("ni,nij->nj", hit - o_s, R_s)
             miss = local[:, :2] - c_r - target
             alive = np.asarray(out.status) == 0
-            err = np.where(alive[:, None], miss, 0.0)
-            if np.max(np.abs(err)) < 1e-13:
+            e = np.where(alive[:, None], miss, 0.0)
+            upd = moving[u]
+            err = np.where(upd[:, None], e, err)
+            for j in np.flatnonzero(moving):
+                if not np.any(sel[j]) or np.max(np.abs(err[sel[j]])) < 1e-13:
+                    moving[j] = False
+            if not np.any(moving):
                 break
-            t = t - err @ JSt_inv.T
+            step = moving[u]
+            t = np.where(step[:, None], t - np.einsum("na,nab->nb", err, JSt_inv), t)
     return s_r, m_r, n_r, k_r, t, err
 
 

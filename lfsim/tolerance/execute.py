@@ -2,8 +2,9 @@
 
 Work is a list of *units* ``(uid, payload)`` (a trial's offsets, a sweep
 point's overrides). Units are grouped into batches of ``batch``; one batch is
-one Dask task, :func:`run_units`, which evaluates its units one after the
-other in the worker process with an evaluator that the process builds once
+one Dask task, :func:`run_units`, which evaluates its units in the worker
+process (the trials of a tolerance batch with their rays traced together, one
+kernel launch per step for the whole batch) with an evaluator that the process builds once
 per job and keeps (:data:`_EVALUATORS`): the nominal design, its first-order
 model and the Dr.Jit kernels, which are compiled on the first unit and
 reused by all later ones of that worker.
@@ -59,6 +60,8 @@ def _evaluator(job: dict):
 def run_units(job: dict, units: list) -> list[dict]:
     """Dask task: evaluate ``units`` [(uid, payload)] of ``job`` in this process; their records."""
     ev = _evaluator(job)
+    if hasattr(ev, "run_many"):  # trials: every unit's rays in shared launches
+        return ev.run_many(units)
     return [ev.run(uid, payload) for uid, payload in units]
 
 

@@ -17,12 +17,12 @@ import os
 import socket
 import time
 
-from ..analysis.ini_analysis import evaluate, summarize
+from ..analysis.ini_analysis import PupilSets, evaluate, summarize
 from ..design.design import Design
 from ..design.errors import DesignError
 from ..design.tolerance_section import TARGETS, ToleranceSpec
 from ..ini.model import IniModel, IniModelError
-from ..ini.subsystems import sample
+from ..ini.subsystems import sample, trace_many
 from .compensate import compensate, paraxial_depths
 from .perturb import apply_setting_errors, perturb
 
@@ -45,7 +45,10 @@ def metrics_of(design: Design, reference: IniModel | None = None, subs=None) -> 
     """The InI metrics of ``design`` (its ``[ini.analysis]`` sampling), GD/PA against ``reference``."""
     model = IniModel(design)
     ref = reference or model
-    res = evaluate(model, subs if subs is not None else sample(ref), reference=reference)
+    return _summary(evaluate(model, subs if subs is not None else sample(ref), reference=reference))
+
+
+def _summary(res: dict) -> dict:
     s = summarize(res)["summary"]
     out = {k: s[k] for k in METRICS}
     out["rays_failed"] = s["rays_failed"]
@@ -87,19 +90,59 @@ class TrialEvaluator:
 
     def run(self, uid: str, offsets: dict[str, float]) -> dict:
         """The record of one trial: offsets, compensator values, metrics, pass/fail (or its error)."""
-        t0 = time.perf_counter()
-        rec = {"id": uid, "offsets": dict(offsets), "compensators": {}, "metrics": None, "pass": False,
-               "failed": [], "error": None}
-        try:
-            design_c, comp = self.build(offsets)
-            rec["compensators"] = comp.values
-            rec["compensator_cost"] = [comp.cost0, comp.cost]
-            rec["metrics"] = metrics_of(design_c, self.ref, self.subs)
-            rec["failed"] = passes(rec["metrics"], self.spec.targets)
-            rec["pass"] = not rec["failed"]
-        except (DesignError, IniModelError, ValueError, FloatingPointError) as e:
-            rec["error"] = " ".join(str(e).split())[:300]
-            rec["failed"] = ["error"]
-        rec["seconds"] = round(time.perf_counter() - t0, 4)
-        rec["worker"] = f"{socket.gethostname()}:{os.getpid()}"
-        return rec
+        return self.run_many([(uid, offsets)])[0]
+
+    def run_many(self, units: list) -> list[dict]:
+        """The records of several trials ``[(uid, offsets)]``, their rays traced in shared launches.
+
+        Each unit is built (perturbed, compensated) and modelled on its own;
+        the rays of every sampled sub-system of all of them are then aimed and
+        traced together (:func:`lfsim.ini.subsystems.trace_many`: one kernel
+        launch per Newton step for the whole batch, bit for bit the rays each
+        would get alone), and each unit's metrics are computed from its rays.
+        A unit whose design or model fails is a recorded, failed trial.
+        ``seconds`` of a record: its own build and metrics plus its share of
+        the shared trace.
+        """
+        recs, built = [], []
+        for uid, offsets in units:
+            t0 = time.perf_counter()
+            rec = {"id": uid, "offsets": dict(offsets), "compensators": {}, "metrics": None, "pass": False,
+                   "failed": [], "error": None}
+            try:
+                design_c, comp = self.build(offsets)
+                rec["compensators"] = comp.values
+                rec["compensator_cost"] = [comp.cost0, comp.cost]
+                built.append((rec, IniModel(design_c)))
+            except _ERRORS as e:
+                _fail(rec, e)
+            rec["seconds"] = time.perf_counter() - t0
+            recs.append(rec)
+        if built:
+            t0 = time.perf_counter()
+            sets = PupilSets.build(self.nominal.ini.pupil, self.nominal.ini.mtf_grid)
+            bundles = trace_many([mo for _, mo in built], self.subs, sets.rho)
+            share = (time.perf_counter() - t0) / len(built)
+            for (rec, model), bundle in zip(built, bundles):
+                t1 = time.perf_counter()
+                try:
+                    rec["metrics"] = _summary(evaluate(model, self.subs, reference=self.ref, bundle=bundle))
+                    rec["failed"] = passes(rec["metrics"], self.spec.targets)
+                    rec["pass"] = not rec["failed"]
+                except _ERRORS as e:
+                    _fail(rec, e)
+                rec["seconds"] += share + time.perf_counter() - t1
+        worker = f"{socket.gethostname()}:{os.getpid()}"
+        for rec in recs:
+            rec["seconds"] = round(rec["seconds"], 4)
+            rec["worker"] = worker
+        return recs
+
+
+_ERRORS = (DesignError, IniModelError, ValueError, FloatingPointError)
+
+
+def _fail(rec: dict, e: Exception) -> None:
+    rec["metrics"] = None
+    rec["error"] = " ".join(str(e).split())[:300]
+    rec["failed"] = ["error"]
