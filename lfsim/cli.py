@@ -429,6 +429,8 @@ def cmd_gradcheck(args) -> int:
             continue
         if not (v > 0 and math.isfinite(v) or (flag == "--cdp-mm" and v == math.inf)):
             raise InputError(f"{flag} = {v!r}: must be > 0")
+    if args.motion_px is not None and not (args.motion_px >= 0 and math.isfinite(args.motion_px)):
+        raise InputError(f"--motion-px = {args.motion_px!r}: must be >= 0")
     if args.display_blur is not None and not (args.display_blur >= 0 and math.isfinite(args.display_blur)):
         raise InputError(f"--display-blur = {args.display_blur!r}: must be >= 0")
     sweep = tuple(_float_list(args.sweep, "--sweep")) if args.sweep else ()
@@ -437,7 +439,7 @@ def cmd_gradcheck(args) -> int:
     log = None if args.json else (lambda msg: print(msg, file=sys.stderr))
     doc = run(design, content, names, view_spec, rel_step=args.rel_step, edge_rel_step=args.edge_rel_step,
               sweep=sweep, log=log, optics=args.optics, tessellation=args.tessellation, fresnel=args.fresnel,
-              display_blur=args.display_blur, fd_points=args.fd_points)
+              display_blur=args.display_blur, fd_points=args.fd_points, motion_px=args.motion_px)
     bad = [p["name"] for p in doc["params"]
            if (not p["boundary"] and p["rel_err"] > args.tolerance)
            or p["forward_reverse_rel"] > doc["forward_reverse_tol"]]
@@ -768,6 +770,9 @@ def build_parser() -> argparse.ArgumentParser:
                           "(default 1e-7; mesh path 1e-3)")
     gcp.add_argument("--fd-points", type=int, default=None,
                      help="points per side of the main difference, least-squares slope (default 1; mesh 4)")
+    gcp.add_argument("--motion-px", type=float, default=None,
+                     help="cap the main step so that it moves display hits (99th percentile) by at most this many "
+                          "display pixels (default 1e-3; mesh 0.25; 0 = off)")
     gcp.add_argument("--edge-rel-step", type=float, default=None,
                      help="relative step at which the edge (boundary) term is measured (default 1e-3; mesh 1e-2)")
     gcp.add_argument("--sweep", help="further relative steps to report, comma separated (e.g. 1e-5,1e-6)")

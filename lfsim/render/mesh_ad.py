@@ -36,6 +36,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import weakref
+
 import drjit as dr
 import numpy as np
 
@@ -309,6 +311,10 @@ class MeshGeometry:
 
 
 # ------------------------------------------------------------ the scene
+#: Every MeshScene alive (see :meth:`MeshScene.release`).
+_LIVE_SCENES: "weakref.WeakSet" = weakref.WeakSet()
+
+
 def _flat32(v):
     """T.Array3 (float64) → Mitsuba's flat float32 buffer x0 y0 z0 x1 … (differentiable)."""
     from . import mitsuba
@@ -385,7 +391,9 @@ class MeshScene:
                      for key in ([f"{name}.vertex_positions"] + ([f"{name}.vertex_normals"] if has_n else [])
                                  + [f"{name}.bsdf.{b}" for b in bk])] + ["display.vertex_positions",
                                                                           "display.vertex_normals"]
+        self._release_keys = list(self.keys)
         self._current = None
+        _LIVE_SCENES.add(self)
 
     def values(self, P, frames=None) -> list:
         """The Mitsuba parameter values (``self.keys`` order) at design vector ``P``
@@ -415,10 +423,38 @@ class MeshScene:
         """Write parameter values (``self.keys`` order) into the scene (one update)."""
         if values is self._current:
             return
+        for other in list(_LIVE_SCENES):
+            if other is not self:
+                other.release()
         for key, v in zip(self.keys, values):
             self.params[key] = v
         self.params.update()
         self._current = values
+
+    def release(self) -> None:
+        """Replace the AD-attached values in the scene by detached copies (same numbers).
+
+        Dr.Jit differentiates a symbolic virtual call (``bsdf.sample``, the
+        shapes' intersection) by replaying it, at propagation time, over
+        *every* registered instance of the variant, those of other scenes
+        included. A parameter that another scene still held attached to an
+        earlier AD graph then entered this scene's derivative as an implicit
+        input: forward mode failed with "... lies outside of the current
+        dr.isolate_grad() scope" as soon as a second scene was differentiated
+        in the same process (with or without ``fresnel``). :meth:`set` therefore
+        releases every other live scene first: only the scene in use holds
+        attached values. (Releasing a scene right after its own trace is wrong:
+        the replay then sees detached parameters and the derivative is 0.)
+        """
+        changed = False
+        for key in self._release_keys:
+            v = self.params[key]
+            if dr.grad_enabled(v):
+                self.params[key] = dr.detach(v)
+                changed = True
+        if changed:
+            self.params.update()
+        self._current = None
 
 
 # ------------------------------------------------------------ the renderer
