@@ -332,13 +332,10 @@ def cmd_optimize(args) -> int:
 DEFAULT_CONTENT = "scenes/fig9_wall.toml"
 
 
-def cmd_focal_stack(args) -> int:
-    from pathlib import Path
-
-    from .analysis import focus_cues
+def _view_of(args, verb: str):
+    """The content, design and eye view of a render verb: ``(content, design_path, design, focus_mm,
+    cdp_mm, pupil_mm)``, from the arguments or else the content file's ``[view]``."""
     from .design.content import load_content
-    from .fileio import write_json
-    from .render.focal_stack import FocalStackSpec, focal_stack
 
     content = load_content(args.content)
     view = content.view
@@ -347,7 +344,7 @@ def cmd_focal_stack(args) -> int:
         raise InputError(f"{args.content}: view.design = missing: give a DESIGN argument")
     design = _load_design(args, design_path)
     if design.ini is None:
-        raise InputError(f"{design_path}: ini = missing: lfsim focal-stack needs an [ini] section")
+        raise InputError(f"{design_path}: ini = missing: {verb} renders an InI design ([ini] section)")
     focus = _float_list(args.focus_mm, "--focus-mm") if args.focus_mm else view.get("focus_mm", [600.0, 1000.0, 1400.0])
     if any(not f > 0 for f in focus):
         raise InputError(f"--focus-mm = {args.focus_mm!r}: distances must be > 0")
@@ -363,6 +360,17 @@ def cmd_focal_stack(args) -> int:
     pupil = args.pupil_mm if args.pupil_mm is not None else view.get("pupil_diameter", 3.0)
     if not (math.isfinite(pupil) and pupil > 0):
         raise InputError(f"--pupil-mm = {pupil!r}: must be > 0")
+    return content, design_path, design, focus, cdp, pupil
+
+
+def cmd_focal_stack(args) -> int:
+    from pathlib import Path
+
+    from .analysis import focus_cues
+    from .fileio import write_json
+    from .render.focal_stack import FocalStackSpec, focal_stack
+
+    content, design_path, design, focus, cdp, pupil = _view_of(args, "lfsim focal-stack")
     if args.spp < 1:
         raise InputError(f"--spp = {args.spp}: must be >= 1")
     if not (math.isfinite(args.tessellation) and args.tessellation > 0):
@@ -396,18 +404,10 @@ def cmd_focal_stack(args) -> int:
 
 
 def cmd_gradcheck(args) -> int:
-    from .design.content import load_content
     from .render.diff_render import ViewSpec
     from .render.gradcheck import run, table
 
-    content = load_content(args.content)
-    view = content.view
-    design_path = args.design or view.get("design")
-    if design_path is None:
-        raise InputError(f"{args.content}: view.design = missing: give a DESIGN argument")
-    design = _load_design(args, design_path)
-    if design.ini is None:
-        raise InputError(f"{design_path}: ini = missing: lfsim gradcheck renders an InI design")
+    content, design_path, design, focus, cdp, pupil = _view_of(args, "lfsim gradcheck")
     names = [n.strip() for n in ",".join(args.param).split(",") if n.strip()]
     if not names:
         raise InputError("--param: give at least one parameter name")
@@ -418,12 +418,9 @@ def cmd_gradcheck(args) -> int:
     if unknown:
         raise InputError(f"--param {','.join(unknown)}: not a parameter of {design_path} "
                          "(lfsim params DESIGN lists them; object.distance is the display gap)")
-    focus = _float_list(args.focus_mm, "--focus-mm") if args.focus_mm else view.get("focus_mm", [600.0, 1000.0, 1400.0])
-    cdp = float(args.cdp_mm) if args.cdp_mm is not None else view.get("cdp_mm", 1000.0)
-    pupil = args.pupil_mm if args.pupil_mm is not None else view.get("pupil_diameter", 3.0)
     res = _int_pair(args.resolution, "--resolution")
     for flag, v in (("--spp", args.spp), ("--rel-step", args.rel_step), ("--edge-rel-step", args.edge_rel_step),
-                    ("--pupil-mm", pupil), ("--cdp-mm", cdp), ("--tessellation", args.tessellation),
+                    ("--tessellation", args.tessellation),
                     ("--fd-points", args.fd_points)):
         if v is None and flag in ("--rel-step", "--edge-rel-step", "--fd-points"):
             continue
