@@ -179,6 +179,16 @@ class ReverseMap:
         return Rs[self.vw], os_[self.vw]
 
 
+def flat_leaves(arrays: list, R_vw, o_vw) -> list:
+    """``arrays`` then the eye frame's entries (``o_vw[a]``, ``R_vw[a][0..2]`` for each row a):
+    the flat order in which leaves and their adjoints are paired by ``_pull_back``."""
+    out = list(arrays)
+    for a in range(3):
+        out.append(o_vw[a])
+        out.extend(R_vw[a][b] for b in range(3))
+    return out
+
+
 @dataclass
 class RayBatch:
     """Per-sample result of :meth:`AnalyticRenderer.trace` (Dr.Jit arrays)."""
@@ -380,28 +390,31 @@ class AnalyticRenderer:
         value = objective(tuple(leaves))
         dr.backward(value)
         adj = [dr.detach(dr.grad(v)) for v in leaves]
+        return float(value[0]), self._pull_back(P, flat_leaves(adj[0:1], adj[1], adj[2]), wrt)
+
+    def _leaves(self, P) -> list:
+        """The map ``P → (P_rev, R_vw, o_vw)`` whose outputs :meth:`backward` detaches,
+        flattened in the order of :func:`flat_leaves`."""
+        P_rev, R_vw, o_vw = self.optics(P)
+        return flat_leaves([P_rev], R_vw, o_vw)
+
+    def _pull_back(self, P, adj: list, wrt=None) -> np.ndarray:
+        """``d/dP_i Σ_j <adj_j, leaf_j(P)>`` for every ``i`` in ``wrt`` (default all), one
+        forward-mode pass each: the second half of the mixed-mode reverse gradient."""
+        T = self.T
         values = np.asarray(dr.detach(P), dtype=np.float64)
         grad = np.zeros(len(self.names))
         for i in (range(len(self.names)) if wrt is None else wrt):
-            grad[i] = self._pull(values, adj, int(i))
-        return float(value[0]), grad
-
-    def _pull(self, values, adj, i: int) -> float:
-        """d/dP_i of <adj, (P_rev, R_vw, o_vw)(P)> by forward mode."""
-        T = self.T
-        t = dr.zeros(T.Float, 1)
-        dr.enable_grad(t)
-        e = np.zeros(len(self.names))
-        e[i] = 1.0
-        P = self.params(values) + t * T.Float(e)
-        P_rev, R_vw, o_vw = self.optics(P)
-        pull = dr.sum(P_rev * adj[0])
-        for a in range(3):
-            pull = pull + o_vw[a] * adj[2][a]
-            for b in range(3):
-                pull = pull + R_vw[a][b] * adj[1][a][b]
-        dr.forward_from(t)
-        return float(dr.grad(pull)[0])
+            t = dr.zeros(T.Float, 1)
+            dr.enable_grad(t)
+            e = np.zeros(len(self.names))
+            e[int(i)] = 1.0
+            pull = T.Float(0.0)
+            for v, a in zip(self._leaves(self.params(values) + t * T.Float(e)), adj):
+                pull = pull + T.Float(dr.sum(v * a))
+            dr.forward_from(t)
+            grad[int(i)] = float(dr.grad(pull)[0])
+        return grad
 
     def image_numpy(self, values=None, k: int = 0) -> np.ndarray:
         """(H, W, C) float64 retinal image of focus ``k`` at ``values`` (no gradients)."""

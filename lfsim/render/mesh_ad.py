@@ -464,6 +464,12 @@ def _analytic_base():
     return AnalyticRenderer
 
 
+def flat_leaves(arrays: list, R_vw, o_vw) -> list:
+    from .diff_render import flat_leaves as f
+
+    return f(arrays, R_vw, o_vw)
+
+
 class MeshRenderer(_analytic_base()):
     """Retinal images through the optics *meshes*, differentiable in the design vector.
 
@@ -548,32 +554,13 @@ class MeshRenderer(_analytic_base()):
         dr.enable_grad(leaves[2])
         value = objective(leaves)
         dr.backward(value)
-        adj = ([dr.detach(dr.grad(v)) for v in leaves[0]], dr.detach(dr.grad(leaves[1])),
-               dr.detach(dr.grad(leaves[2])))
+        adj = flat_leaves([dr.detach(dr.grad(v)) for v in leaves[0]], dr.detach(dr.grad(leaves[1])),
+                           dr.detach(dr.grad(leaves[2])))
         self.mscene._current = None
         self._cache = None
-        values = np.asarray(dr.detach(P), dtype=np.float64)
-        grad = np.zeros(len(self.names))
-        for i in (range(len(self.names)) if wrt is None else wrt):
-            grad[i] = self._pull(values, adj, int(i))
-        return float(value[0]), grad
+        return float(value[0]), self._pull_back(P, adj, wrt)
 
-    def _pull(self, values, adj, i: int) -> float:
-        T = self.T
-        t = dr.zeros(T.Float, 1)
-        dr.enable_grad(t)
-        e = np.zeros(len(self.names))
-        e[i] = 1.0
-        P = self.params(values) + t * T.Float(e)
+    def _leaves(self, P) -> list:
         frames = self.geom.frames(P)
         vals = self.mscene.values(P, frames)
-        R_vw, o_vw = frames[0][self.map.vw], frames[1][self.map.vw]
-        pull = T.Float(0.0)
-        for v, a in zip(vals, adj[0]):
-            pull = pull + T.Float(dr.sum(v * a))
-        for r in range(3):
-            pull = pull + o_vw[r] * adj[2][r]
-            for s in range(3):
-                pull = pull + R_vw[r][s] * adj[1][r][s]
-        dr.forward_from(t)
-        return float(dr.grad(pull)[0])
+        return flat_leaves(vals, frames[0][self.map.vw], frames[1][self.map.vw])
