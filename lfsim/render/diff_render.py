@@ -142,9 +142,7 @@ class ReverseMap:
 
     def frames(self, P):
         """Forward frames (R, o) of every surface at ``P`` (differentiable)."""
-        T = self.T
-        P_fwd = dr.gather(T.Float, P, dr.arange(T.UInt32, self.fwd.n_params))
-        return self.fwd.frames(P_fwd)
+        return forward_frames(self.fwd, P)
 
     def reverse_params(self, P, frames=None):
         """The reversed system's parameter array at design vector ``P`` (differentiable)."""
@@ -177,6 +175,12 @@ class ReverseMap:
         """(R, o) of the viewing window (the eye's frame) from forward frames."""
         Rs, os_ = frames
         return Rs[self.vw], os_[self.vw]
+
+
+def forward_frames(tracer: SequentialTracer, P):
+    """Forward frames (R, o) of every surface of ``tracer`` at design vector ``P``, whose first
+    ``tracer.n_params`` entries are the forward parameter table (differentiable)."""
+    return tracer.frames(dr.gather(tracer.T.Float, P, dr.arange(tracer.T.UInt32, tracer.n_params)))
 
 
 def flat_leaves(arrays: list, R_vw, o_vw) -> list:

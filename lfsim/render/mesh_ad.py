@@ -89,13 +89,15 @@ class MeshGeometry:
         Interfaces refract with weight 1 − F instead of 1.
     extra_names : sequence of str
         Names that follow the forward table in the design vector.
+    tracer : SequentialTracer, optional
+        The design's float64 forward tracer, when the caller has one already.
     """
 
     def __init__(self, design, values, wavelength_nm=None, tessellation=None, mounts: bool = True,
-                 fresnel: bool = False, extra_names=("object.distance",)):
+                 fresnel: bool = False, extra_names=("object.distance",), tracer=None):
         system = design.system
         self.system = system
-        self.tracer = SequentialTracer(system, "float64")
+        self.tracer = tracer if tracer is not None else SequentialTracer(system, "float64")
         self.T = T = self.tracer.T
         self.names = list(self.tracer.names) + list(extra_names)
         self.index = {n: i for i, n in enumerate(self.names)}
@@ -237,9 +239,9 @@ class MeshGeometry:
 
     def frames(self, P):
         """Forward frames (R, o) of every surface at design vector ``P`` (differentiable)."""
-        T = self.T
-        P_fwd = dr.gather(T.Float, P, dr.arange(T.UInt32, self.tracer.n_params))
-        return self.tracer.frames(P_fwd)
+        from .diff_render import forward_frames
+
+        return forward_frames(self.tracer, P)
 
     def geometry(self, P, frames=None):
         """Per part: (global vertices T.Array3, global unit normals T.Array3 or None)."""
@@ -497,7 +499,7 @@ class MeshRenderer(_analytic_base()):
         tess = tessellation if tessellation is not None else _m.tessellation(0.25)
         self.tessellation = dict(tess)
         self.geom = MeshGeometry(design, self.model.values(0), self.model.lam, tess, mounts=mounts,
-                                 fresnel=fresnel)
+                                 fresnel=fresnel, tracer=self.map.fwd)
         if self.geom.names != self.names:
             raise RuntimeError("mesh geometry and renderer disagree on the design vector")
         img = self.display
