@@ -33,7 +33,7 @@ def freeform_merit(tmp_path_factory):
     scenes = Path(__file__).resolve().parents[1] / "scenes"
     d = _design(scenes, tmp_path_factory.mktemp("m"),
                 ["S3.x2y0", "S4.x2y1", "S1.curvature", "A1a.curvature", "tunable"],
-                targets={"spot_axis_max_arcmin": 0.5})
+                targets={"spot_axis_max_arcmin": 0.5, "gd_mean_deg": 0.3, "min_prism_thickness": 25.0})
     return IniMerit(d, d.optimize)
 
 
@@ -46,7 +46,8 @@ def test_merit_jacobian_matches_central_differences(freeform_merit):
     x0 = M.x0
     r, J, det = M.evaluate(x0)
     assert np.isfinite(r).all() and np.isfinite(J).all() and det["rays_lost"] == 0
-    assert det["spot_axis_max"] > 0 and det["gd_max"] > 0  # the hinge blocks are active
+    assert det["spot_axis_max"] > 0 and det["gd_max"] > 0 and det["gd_mean"] > 0  # the hinge blocks are active
+    assert det["prism_thickness"] > 0
     for j in range(len(x0)):
         h = 1e-6 * max(1.0, abs(x0[j])) if M.cols[j].state is None else 1e-4
         xp, xm = x0.copy(), x0.copy()
@@ -120,3 +121,24 @@ def test_optimize_bad_input(scenes, tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert "optimize.variables" in err and "\n" not in err
     assert not (tmp_path / "o").exists()
+
+
+def test_grid_weights_estimate_the_mean_over_every_lenslet(freeform_merit):
+    """Each sampled lenslet stands for its nearest lenslets: the weights sum to the
+    array's lenslet count per depth, and a field that is linear across the array
+    has the same weighted mean over the sample as over all lenslets."""
+    from lfsim.ini.subsystems import sample
+
+    M = freeform_merit
+    model = M.model0
+    arr = model.arr
+    for stride in ((4, 2), (5, 3), (16, 8), (1, 1)):
+        subs = sample(model, stride=stride, symmetry="none")
+        w = M._grid_weights(model, subs)
+        per_depth = w.sum() / len(model.depths)
+        assert per_depth == pytest.approx(arr.m * arr.n, rel=1e-12)
+        if stride == (1, 1):
+            assert np.all(w == 1.0)
+        f = 0.3 * subs.m + 0.7 * subs.n  # exact for a linear field when both ends are sampled
+        full = 0.3 * (arr.m - 1) / 2 + 0.7 * (arr.n - 1) / 2
+        assert (w @ f) / w.sum() == pytest.approx(full, rel=1e-12), stride

@@ -23,6 +23,7 @@ Schema (units mm, degrees, diopters)::
     pupil = 4                # Gauss–Legendre nodes per pupil axis (>= 2) for the RMS spot
     [optimize.targets]       # all optional
     gd_max_deg = 0.75        # Eq. (11) target, > 0 (default: [ini.analysis] gd_target_deg)
+    gd_mean_deg = 0.22       # optional: the mean GD over the display at most this, > 0
     pa_max = 0.3             # Eq. (12) target, > 0 (default: [ini.analysis] pa_target)
     spot_axis_max_arcmin = 1.0    # optional: RMS spot along x and along y of every
                                   # sub-system and field at most this (a contrast
@@ -36,7 +37,7 @@ Schema (units mm, degrees, diopters)::
     min_center_thickness = 0.3    # mm, glass, >= 0
     min_edge_thickness = 0.3      # mm, glass, >= 0
     min_air_gap = 0.1             # mm, >= 0
-    min_prism_thickness = 1.0     # mm, >= 0
+    min_prism_thickness = 1.0     # mm, >= 0: between opposite prism faces (lfsim.optics.solids)
     tir_margin_deg = 1.0          # TIR surfaces: incidence at least this far beyond
                                   # the critical angle, in [0, 90)
     [optimize.weights]       # all optional, finite and >= 0
@@ -112,6 +113,7 @@ class OptimizeTargets:
     """Targets and constraint limits; ``None`` = taken from the starting design."""
 
     gd_max_deg: float | None = None
+    gd_mean_deg: float | None = None
     pa_max: float | None = None
     spot_axis_max_arcmin: float | None = None
     local_distortion_max: float = 0.05
@@ -283,7 +285,7 @@ def _targets(ctx, tab) -> OptimizeTargets:
     ctx.no_unknown(tab, TARGET_KEYS, "optimize.targets")
     p = "optimize.targets"
     kw = {}
-    for key in ("gd_max_deg", "pa_max", "local_distortion_max", "spot_axis_max_arcmin"):
+    for key in ("gd_max_deg", "gd_mean_deg", "pa_max", "local_distortion_max", "spot_axis_max_arcmin"):
         if key in tab:
             kw[key] = ctx.number(tab, key, p, positive=True)
     for key, top, allowed in (("crosstalk_margin", 0.5, "a fraction of the lenslet pitch in [0, 0.5)"),

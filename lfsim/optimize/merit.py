@@ -17,7 +17,10 @@ spot          √w_j · (r_j − r̄) per Gauss–Legendre pupil ray, arcmin, ov
 spot_axis_max 10 × the excess of the RMS spot along x or y of a sub-system
               and field over ``spot_axis_max_arcmin`` (a contrast floor)
 gd            Eq. (11) chief-ray error |r − r_par| in degrees (mean part),
-              plus 10 × its excess over the GD target per sub-system
+              plus 10 × its excess over the GD target per sub-system, and
+              10 × the excess of the mean GD over ``gd_mean_deg`` (the mean
+              over the whole display: sampled lenslets weighted by the
+              lenslets nearest to them)
 pa            Eq. (12) marginal-ray footprint errors |v − v′|/(√2 d_v) (mean
               part), plus 10 × the excess over the PA target per ray
 distortion    local distortion of each elemental image beyond its target
@@ -28,6 +31,9 @@ aperture      pupil rays beyond a clear aperture of the relay or eyepiece, µm
 efl           relay–eyepiece focal length per CDP state, % from its target
 thickness     centre thickness of glass / air gaps below their minimum, and
               edge thickness of glass elements at their clear radius, µm
+prism_        a prism's thickness between opposite faces below
+thickness     ``min_prism_thickness`` at the faces' aperture grids, µm
+              (:mod:`lfsim.optics.solids`)
 tir           incidence below the critical angle + margin on TIR surfaces, °
 lost          a ray lost to a failed refraction or intersection: a constant
               (steps that lose rays raise the merit and are rejected)
@@ -53,9 +59,11 @@ from ..design.design import Design
 from ..ini.model import IniModel
 from ..ini.subsystems import field_grid, sample, trace_rays_jacobian
 from ..metrics import pupil
+from ..optics.solids import prism_thickness, prisms
 from ..metrics.spot import ARCMIN
 
 LOST = 10.0  # residual of a lost ray (arcmin-equivalent)
+PRISM_POINTS = 9  # sample points per axis of a prism face's clear aperture (thickness)
 DEG = 180.0 / math.pi
 
 
@@ -128,6 +136,7 @@ class IniMerit:
         self.sl_marg = slice(1, 5)
         self.sl_gl = slice(5, 5 + len(gl))
         self.evaluations = 0
+        self._has_prism = bool(prisms(design.system))
         self._model = None  # (x bytes, IniModel) of the last design built
 
     # ------------------------------------------------------------ designs
@@ -214,6 +223,21 @@ class IniMerit:
             minus = np.stack([refs[2 * j + 1][key] for j in range(len(self.cols))], axis=-1)
             out[key] = (plus - minus) / (2.0 * steps)
         return out
+
+    @staticmethod
+    def _grid_weights(model: IniModel, subs) -> np.ndarray:
+        """(S,) the number of the array's lenslets nearest to each sampled one (ties
+        shared), so that a weighted mean over the sample estimates the mean over
+        every lenslet of the display; 1 for every sub-system at stride 1."""
+        def axis(count, used):
+            used = np.unique(used)
+            d = np.abs(np.arange(count)[:, None] - used[None, :])
+            near = d == d.min(axis=1, keepdims=True)
+            share = (near / near.sum(axis=1, keepdims=True)).sum(axis=0)
+            return dict(zip(used.tolist(), share))
+
+        wx, wy = axis(model.arr.m, subs.m), axis(model.arr.n, subs.n)
+        return np.array([wx[int(a)] * wy[int(b)] for a, b in zip(subs.m, subs.n)])
 
     def _rays(self, model: IniModel, subs, derivatives: bool):
         S, F, R = len(subs), subs.display.shape[1], len(self.rho)
@@ -371,6 +395,18 @@ class IniMerit:
         de = dr_[:, 0, 0] - dpar_c[:, 0] if derivatives else None
         add("gd", np.where(okc[:, None], e, 0.0) * DEG * w.gd / math.sqrt(S),
             np.where(okc[:, None, None], de, 0.0) * DEG * w.gd / math.sqrt(S) if derivatives else None)
+        if t.gd_mean_deg is not None and okc.any():
+            # The mean over the whole display: each sampled lenslet stands for the
+            # lenslets nearest to it (all weights equal at stride 1).
+            wm = np.where(okc, self._grid_weights(model, subs), 0.0)
+            wm = wm / wm.sum()
+            mean = float(wm @ gd)
+            hit = mean > t.gd_mean_deg
+            jac = None
+            if derivatives:
+                u = e / np.maximum(np.hypot(e[:, 0], e[:, 1]), 1e-300)[:, None]
+                jac = (np.einsum("s,sa,sak->k", wm, u, de) * DEG * 10.0 * w.gd * hit)[None]
+            add("gd_mean", np.array([(mean - t.gd_mean_deg) * 10.0 * w.gd if hit else 0.0]), jac)
         if t.gd_max_deg is not None:
             over = okc & (gd > t.gd_max_deg)
             u = np.where(over[:, None], e / np.maximum(np.hypot(e[:, 0], e[:, 1]), 1e-300)[:, None], 0.0)
@@ -530,6 +566,30 @@ class IniMerit:
                                            - self._edge_thickness(model, vm, i, j, rad)) / (2 * h)
                     jac *= 1000.0 * w.thickness
                 add("edge_thickness", np.where(over, t.min_edge_thickness - et, 0.0) * 1000.0 * w.thickness, jac)
+
+        # Prism thickness between opposite faces (lfsim.optics.solids), at the faces'
+        # aperture grids; derivatives by central differences of the geometry.
+        if t.min_prism_thickness is not None and self._has_prism:
+            vals = model.values0
+            th = prism_thickness(model.tracer, vals, PRISM_POINTS)[0][0]
+            over = np.isfinite(th) & (th < t.min_prism_thickness)
+            jac = None
+            if derivatives:
+                jac = np.zeros((th.size, K))
+                geo = [j_ for j_, c in enumerate(self.cols) if c.state is None]
+                if over.any() and geo:
+                    names = model.tracer.names
+                    hs = np.array([1e-7 * max(1.0, abs(x[j_])) for j_ in geo])
+                    V = np.repeat(vals[None], 2 * len(geo), axis=0)
+                    for q, (j_, h) in enumerate(zip(geo, hs)):
+                        V[2 * q, names.index(self.cols[j_].name)] += h
+                        V[2 * q + 1, names.index(self.cols[j_].name)] -= h
+                    tv = prism_thickness(model.tracer, V, PRISM_POINTS)[0]
+                    with np.errstate(invalid="ignore"):  # a point whose line misses at x ± h: no slope
+                        d_th = (tv[0::2] - tv[1::2]) / (2.0 * hs[:, None])  # (len(geo), Q)
+                    jac[:, geo] = np.where(over[:, None] & np.isfinite(d_th.T), -d_th.T, 0.0)
+                jac *= 1000.0 * w.thickness
+            add("prism_thickness", np.where(over, t.min_prism_thickness - th, 0.0) * 1000.0 * w.thickness, jac)
 
         r_all = np.concatenate([b[1] for b in blocks])
         J_all = np.concatenate([b[2] for b in blocks]) if derivatives else None

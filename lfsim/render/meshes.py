@@ -42,6 +42,7 @@ import drjit as dr
 import numpy as np
 
 from .. import backend
+from ..optics.components import Component, components  # noqa: F401  (re-exported)
 from ..optics.prescription import Aperture, System
 from ..optics.surfaces import Shape, normal, sag
 
@@ -120,22 +121,6 @@ class Solid:
 
     def is_watertight(self) -> bool:
         return bool(self.pieces) and all(n == 0 for n in self.open_edges())
-
-
-@dataclass
-class Component:
-    """A physical part of the optical path: its kind, surfaces and name.
-
-    kind : ``"lens"`` (refracting surfaces with glass between), ``"prism"``
-    (a glass run with reflect/tir surfaces), ``"lenslet_array"`` (refracting
-    surfaces of an array group), ``"paraxial"``, ``"paraxial_array"``,
-    ``"aperture_array"`` (a dummy array surface with an aperture), ``"mirror"``
-    (a mirror in the ambient medium) or ``"face"`` (a lone refracting surface).
-    """
-
-    kind: str
-    surfaces: list[int]
-    name: str
 
 
 # ------------------------------------------------------- topology checks
@@ -851,50 +836,3 @@ def prism_solid(model: SurfaceModel, surfaces: list[int], segments: int = DEFAUL
     for f in faces:
         f.__dict__.pop("grid", None)
     return Solid(name, faces + [walls], [list(range(nfc + 1))])
-
-
-# ------------------------------------------------------------ components
-def components(system: System) -> list[Component]:
-    """The physical parts of the optical path, in order (last surface excluded:
-    it is the image / viewing window, the sensor's business)."""
-    surf = system.surfaces
-    last = len(surf) - 1
-    media = system.media()
-    amb = system.object_material
-    groups = system.array_groups()
-    out: list[Component] = []
-    i = 0
-    while i < last:
-        s = surf[i]
-        if s.array is not None:
-            idx = [j for j in groups[s.array] if j < last]
-            refr = [j for j in idx if surf[j].interaction == "refract"]
-            if refr:
-                out.append(Component("lenslet_array", refr, s.array))
-            out += [Component("paraxial_array", [j], surf[j].name) for j in idx if surf[j].interaction == "paraxial"]
-            out += [Component("aperture_array", [j], surf[j].name) for j in idx
-                    if surf[j].interaction == "none" and surf[j].aperture is not None]
-            i = groups[s.array][-1] + 1
-            continue
-        if s.interaction == "paraxial":
-            out.append(Component("paraxial", [i], s.name))
-        elif s.interaction == "reflect" and media[i] == amb:
-            out.append(Component("mirror", [i], s.name))
-        elif s.interaction in ("refract", "tir") and media[i] == amb and media[i + 1] != amb:
-            run, j = [i], i + 1
-            while j < last and media[j + 1] != amb:
-                if surf[j].interaction in ("refract", "reflect", "tir"):
-                    run.append(j)
-                j += 1
-            if j < last and surf[j].interaction == "refract":
-                run.append(j)
-                kind = "prism" if any(surf[k].interaction in ("reflect", "tir") for k in run) else "lens"
-                out.append(Component(kind, run, f"{surf[run[0]].name}_{surf[run[-1]].name}"))
-            else:  # glass up to the image: single faces
-                out += [Component("face", [k], surf[k].name) for k in run if surf[k].same_as is None]
-            i = j + 1
-            continue
-        elif s.interaction in ("refract", "tir", "reflect") and media[i] != media[i + 1]:
-            out.append(Component("face", [i], s.name))
-        i += 1
-    return out

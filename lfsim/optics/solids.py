@@ -1,0 +1,165 @@
+"""Thickness of a design's glass prisms, on the tracer's own surface model.
+
+A prism (:func:`lfsim.optics.components.components`, kind ``"prism"``) is a
+run of glass bounded by faces that refract and reflect. Its thickness at a
+point P of one face is measured along that face's normal N, into the glass:
+the distance from P to the first opposite face of the prism that the line
+P + t·N (t > 0) meets inside that face's clear aperture. The glass side of a
+face is the side on which the next face of the run lies (the previous one
+for the exit face), judged from the centre of that face's clear aperture.
+Two faces are opposite when, at the centres of their clear apertures, their
+normals into the glass are more than 180° − ``OPPOSITE_DEG`` apart (the
+faces are within ``OPPOSITE_DEG`` of parallel, like the front and back of a
+prism eyepiece); faces that meet at a wider angle (the entrance face and the
+faces it joins at an edge) bound a wedge whose thickness goes to zero at
+that edge by construction, and are not measured against each other. Neither
+are faces that are one physical face (``same_as``).
+
+Each face with a clear aperture is sampled on a ``points × points`` grid over
+its aperture (boundary included; points of a circular aperture outside the
+circle are dropped). A sample point whose normal line meets no other face
+inside its aperture has no thickness (``inf``): the prism's glass there ends
+outside every modelled aperture.
+
+Every surface, frame and intersection is the tracer's
+(:meth:`~lfsim.optics.tracer.SequentialTracer.frames`,
+:func:`~lfsim.optics.surfaces.sag`, :func:`~lfsim.optics.surfaces.intersect`),
+evaluated for several parameter vectors in one launch (a block per vector,
+e.g. the central differences of an optimization's Jacobian).
+"""
+
+from __future__ import annotations
+
+import drjit as dr
+import numpy as np
+
+from .. import backend
+from .components import components
+from .prescription import System
+from .surfaces import Shape, intersect, normal, sag
+
+#: Shortest distance counted as a hit (mm): the line's own start point is not one.
+_T_MIN = 1e-9
+#: Faces within this angle of parallel (at their aperture centres) are opposite faces.
+OPPOSITE_DEG = 45.0
+
+
+def prisms(system: System) -> list[list[int]]:
+    """Surface indices of every prism of the optical path, in order."""
+    return [c.surfaces for c in components(system) if c.kind == "prism"]
+
+
+def _faces(system: System, run: list[int]) -> list[int]:
+    return [i for i in run if system.surfaces[i].aperture is not None
+            and system.surfaces[i].interaction in ("refract", "reflect", "tir")]
+
+
+def aperture_grid(system: System, i: int, points: int) -> np.ndarray:
+    """(Q, 2) local (x, y) sample points over surface ``i``'s clear aperture."""
+    ap = system.surfaces[i].aperture
+    u = np.linspace(-1.0, 1.0, points)
+    X, Y = np.meshgrid(u, u, indexing="xy")
+    if ap.kind == "circular":
+        keep = np.hypot(X, Y) <= 1.0 + 1e-12
+        xy = np.stack([X[keep], Y[keep]], axis=1) * ap.radius
+    else:
+        xy = np.stack([X.ravel(), Y.ravel()], axis=1) * np.array(ap.half_width)
+    return xy + np.array(ap.decenter)
+
+
+def _shape(tracer, system: System, i: int, V: np.ndarray, reps: int) -> Shape:
+    """Surface ``i``'s shape with per-lane coefficients: block b's repeated ``reps`` times."""
+    T = tracer.T
+    s = system.surfaces[i]
+    o = system.surfaces[s.same_as] if s.same_as is not None else s
+
+    def col(key):
+        return backend.from_numpy(T.Float, np.repeat(V[:, tracer.index[f"{o.name}.{key}"]], reps))
+
+    return Shape(col("curvature"), col("conic"), {a: col(f"A{a}") for a in o.asphere},
+                 {ij: col(f"x{ij[0]}y{ij[1]}") for ij in o.xy},
+                 backend.from_numpy(T.Float, np.full(len(V) * reps, 1.0 / o.norm_radius)))
+
+
+def _inside(ap, x, y) -> np.ndarray:
+    dx, dy = x - ap.decenter[0], y - ap.decenter[1]
+    if ap.kind == "circular":
+        return np.hypot(dx, dy) <= ap.radius
+    return (np.abs(dx) <= ap.half_width[0]) & (np.abs(dy) <= ap.half_width[1])
+
+
+def prism_thickness(tracer, values, points: int = 9) -> tuple[np.ndarray, list[tuple[int, np.ndarray]]]:
+    """Thickness (B, Q) of every prism at every sample point, for B parameter vectors.
+
+    ``values`` (B, n_params) or (n_params,): parameter vectors of the tracer's
+    table. Returns the thickness in mm (``inf`` where the normal line meets
+    no other face) and, per sampled face, ``(surface index, local xy (Q_i, 2))``
+    in the order of the Q columns.
+    """
+    T = tracer.T
+    system: System = tracer.system
+    V = np.atleast_2d(np.asarray(values, dtype=np.float64))
+    B = len(V)
+    with dr.suspend_grad():
+        Rs, os_ = tracer.frames(tracer.params(values=V.ravel()))
+        R = [np.stack([np.stack([np.asarray(Ri[a][b], dtype=np.float64) for b in range(3)], -1)
+                       for a in range(3)], -2) for Ri in Rs]  # (B, 3, 3) each
+        o = [np.stack([np.asarray(oi[a], dtype=np.float64) for a in range(3)], -1) for oi in os_]  # (B, 3)
+
+        def surface_points(i, xy):
+            """Global points and unit normals (B, Q, 3) of surface i at local xy (Q, 2)."""
+            Q = len(xy)
+            X, Y = (backend.from_numpy(T.Float, np.tile(xy[:, k], B)) for k in (0, 1))
+            z, zx, zy, ok = sag(X, Y, _shape(tracer, system, i, V, Q))
+            n = normal(zx, zy, T.Array3)
+            dr.eval(z, n, ok)
+            p = np.stack([np.tile(xy[:, 0], B), np.tile(xy[:, 1], B),
+                          np.asarray(z, dtype=np.float64)], -1).reshape(B, Q, 3)
+            nn = np.stack([np.asarray(n[k], dtype=np.float64) for k in range(3)], -1).reshape(B, Q, 3)
+            okn = np.asarray(ok).reshape(B, Q)
+            return (np.einsum("bij,bqj->bqi", R[i], p) + o[i][:, None],
+                    np.einsum("bij,bqj->bqi", R[i], nn), okn)
+
+        def centre(i):
+            return surface_points(i, np.array([system.surfaces[i].aperture.decenter], dtype=np.float64))
+
+        def into_glass(N, P, C):
+            side = np.sign(np.einsum("bqi,bqi->bq", N, C - P))
+            return N * np.where(side == 0, 1.0, side)[..., None]
+
+        cols, sampled = [], []
+        for run in prisms(system):
+            faces = _faces(system, run)
+            owner = {i: (system.surfaces[i].same_as if system.surfaces[i].same_as is not None else i)
+                     for i in faces}
+            nbr = {a: faces[j + 1] if j + 1 < len(faces) else faces[j - 1] for j, a in enumerate(faces)}
+            cen = {a: centre(a) for a in faces}
+            # Inward normals at the aperture centres (the nominal block decides which faces are opposite).
+            inward = {a: into_glass(cen[a][1], cen[a][0], cen[nbr[a]][0])[0, 0] for a in faces}
+            cos_opp = -np.cos(np.radians(OPPOSITE_DEG))
+            for a in faces:
+                xy = aperture_grid(system, a, points)
+                P, N, ok_a = surface_points(a, xy)
+                U = into_glass(N, P, cen[nbr[a]][0])
+                best = np.full(P.shape[:2], np.inf)
+                for b in faces:
+                    if owner[b] == owner[a] or inward[a] @ inward[b] > cos_opp:
+                        continue
+                    Q = P.shape[1]
+                    pl = np.einsum("bji,bqj->bqi", R[b], P - o[b][:, None])  # R^T (P − o)
+                    dl = np.einsum("bji,bqj->bqi", R[b], U)
+                    pa = T.Array3(*backend.from_numpy(T.Float, *(pl[..., k].ravel() for k in range(3))))
+                    da = T.Array3(*backend.from_numpy(T.Float, *(dl[..., k].ravel() for k in range(3))))
+                    t, hit, conv = intersect(pa, da, _shape(tracer, system, b, V, Q), T, True,
+                                             tracer.newton_tol, tracer.newton_max_iter)
+                    dr.eval(t, hit, conv)
+                    t = np.asarray(t, dtype=np.float64).reshape(B, Q)
+                    good = np.asarray(hit & conv).reshape(B, Q) & (t > _T_MIN)
+                    q = pl + t[..., None] * dl
+                    good &= _inside(system.surfaces[b].aperture, q[..., 0], q[..., 1])
+                    best = np.where(good & (t < best), t, best)
+                cols.append(np.where(ok_a, best, np.inf))
+                sampled.append((a, xy))
+    if not cols:
+        return np.zeros((B, 0)), []
+    return np.concatenate(cols, axis=1), sampled
