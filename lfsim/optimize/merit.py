@@ -41,9 +41,10 @@ lost          a ray lost to a failed refraction or intersection: a constant
 
 Derivatives: the ray blocks are exact forward-mode Dr.Jit derivatives with
 the re-aiming of every ray included; the paraxial references of GD and PA
-and the EFL use the current design's first-order model, whose own change is
-differentiated by central differences of the first-order maps (EFL) or
-neglected within one Jacobian (GD/PA paraxial rays, the display layout):
+and the EFL use the current design's first-order model, whose own change
+(the display layout, the paraxial chief and marginal rays, d_v, the EFL) is
+differentiated by central differences of the first-order maps; the prism
+thickness by central differences of the geometry:
 the residuals themselves are always exact, so a damped least-squares step
 is accepted only when the true merit falls.
 """
@@ -395,10 +396,11 @@ class IniMerit:
         de = dr_[:, 0, 0] - dpar_c[:, 0] if derivatives else None
         add("gd", np.where(okc[:, None], e, 0.0) * DEG * w.gd / math.sqrt(S),
             np.where(okc[:, None, None], de, 0.0) * DEG * w.gd / math.sqrt(S) if derivatives else None)
+        # The mean over the whole display: each sampled lenslet stands for the
+        # lenslets nearest to it (all weights equal at stride 1).
+        gw = self._grid_weights(model, subs)
         if t.gd_mean_deg is not None and okc.any():
-            # The mean over the whole display: each sampled lenslet stands for the
-            # lenslets nearest to it (all weights equal at stride 1).
-            wm = np.where(okc, self._grid_weights(model, subs), 0.0)
+            wm = np.where(okc, gw, 0.0)
             wm = wm / wm.sum()
             mean = float(wm @ gd)
             hit = mean > t.gd_mean_deg
@@ -595,7 +597,7 @@ class IniMerit:
         J_all = np.concatenate([b[2] for b in blocks]) if derivatives else None
         details = {name: float(np.sum(res ** 2)) for name, res, _ in blocks}
         details.update(gd_max_deg=float(np.max(gd[okc])) if okc.any() else None,
-                       gd_mean_deg=float(np.mean(gd[okc])) if okc.any() else None,
+                       gd_mean_deg=float(gw[okc] @ gd[okc] / gw[okc].sum()) if okc.any() else None,
                        rays=int(ok.size), rays_lost=int((~ok).sum()),
                        efl_mm=[float(v) for v in f])
         return r_all, J_all, details

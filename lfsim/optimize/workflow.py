@@ -131,7 +131,7 @@ def optimize(design: Design, out_dir, stages=None, iterations: int | None = None
         doc["stages"].append(rec)
         log(f"stage {stage}: merit {rec['merit_start']:.6g} -> {rec['merit_end']:.6g} "
             f"({res.status}, {res.iterations} iterations, {secs:.1f} s); "
-            f"GD max {det1['gd_max_deg']:.3f} deg")
+            f"GD max {det1['gd_max_deg']:.3f} deg, mean {det1['gd_mean_deg']:.3f} deg over the display")
     doc["seconds"] = round(time.perf_counter() - t_all, 2)
     stem = Path(design.path or "design").stem
     path = out / f"{stem}_optimized.toml"
@@ -143,7 +143,7 @@ def optimize(design: Design, out_dir, stages=None, iterations: int | None = None
                       f"({r['iterations']} iterations, {r['status']}, stride {r['stride'][0]}x{r['stride'][1]})")
     header.append("Evaluate with: lfsim analyze THIS_FILE --out DIR --stride 1,1")
     raw = dict(current.raw)
-    raw["name"] = design.name if design.name.endswith("(optimized)") else f"{design.name} (optimized)"
+    raw["name"] = design.name if "optimized" in design.name.lower() else f"{design.name} (optimized)"
     write_design(path, raw, header)
     doc["optimized_design"] = path.name
     plot_history(doc, out / "merit_history.png")
