@@ -31,6 +31,9 @@ Schema (units mm, degrees, diopters)::
     local_distortion_max = 0.05   # per elemental image (fraction), > 0
     crosstalk_margin = 0.02  # marginal rays stay this fraction of the pitch inside
                              # their lenslet cell, in [0, 0.5)
+    aperture_margin_mm = 0.0 # pupil rays stay this far (mm) inside every clear aperture
+                             # of the relay and eyepiece, >= 0 (the penalty is met from
+                             # outside: a margin keeps the rays inside the real edge)
     efl_mm = nan             # eyepiece focal length target (nonzero; signed, an
                              # inverting group has a negative EFL); nan or
                              # absent: keep the starting design's
@@ -118,6 +121,7 @@ class OptimizeTargets:
     spot_axis_max_arcmin: float | None = None
     local_distortion_max: float = 0.05
     crosstalk_margin: float = 0.02
+    aperture_margin_mm: float = 0.0
     efl_mm: float | None = None
     min_center_thickness: float = 0.3
     min_edge_thickness: float = 0.3
@@ -304,7 +308,8 @@ def _targets(ctx, tab) -> OptimizeTargets:
             if v == 0:
                 raise ctx.err(f"{p}.efl_mm", v, "a nonzero focal length in mm (nan or absent: keep the start's)")
             kw["efl_mm"] = v
-    for key in ("min_center_thickness", "min_edge_thickness", "min_air_gap", "min_prism_thickness"):
+    for key in ("min_center_thickness", "min_edge_thickness", "min_air_gap", "min_prism_thickness",
+                "aperture_margin_mm"):
         if key in tab:
             kw[key] = ctx.number(tab, key, p, nonneg=True)
     return OptimizeTargets(**kw)

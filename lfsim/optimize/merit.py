@@ -26,8 +26,9 @@ pa            Eq. (12) marginal-ray footprint errors |v − v′|/(√2 d_v) (me
 distortion    local distortion of each elemental image beyond its target
 crosstalk     marginal and pupil rays beyond (½ − margin) of the pitch on
               every MLA surface, µm
-aperture      pupil rays beyond a clear aperture of the relay or eyepiece, µm
-              (weighted like crosstalk; the analysis vignettes such rays)
+aperture      pupil rays beyond a clear aperture of the relay or eyepiece
+              (less ``aperture_margin_mm``), µm (weighted like crosstalk; the
+              analysis vignettes rays beyond the aperture itself)
 efl           relay–eyepiece focal length per CDP state, % from its target
 thickness     centre thickness of glass / air gaps below their minimum, and
               edge thickness of glass elements at their clear radius, µm
@@ -496,17 +497,18 @@ class IniMerit:
             ap = model.system.surfaces[i].aperture
             h = J.surf[:, off + j_].reshape(S, F, R, 2) - np.array(ap.decenter)
             dh = dsurf[:, :, :, off + j_] if derivatives else None
+            margin = t.aperture_margin_mm
             if ap.kind == "circular":
                 rad = np.hypot(h[..., 0], h[..., 1])
-                over = ok & (rad > ap.radius)
+                over = ok & (rad > ap.radius - margin)
                 jac = None
                 if derivatives:
                     u = np.where(over[..., None], h / np.maximum(rad, 1e-300)[..., None], 0.0)
                     jac = np.einsum("sfra,sfrak->sfrk", u, dh) * 1000.0 * w.crosstalk
                 add(f"aperture_{model.system.surfaces[i].name}",
-                    np.where(over, rad - ap.radius, 0.0) * 1000.0 * w.crosstalk, jac)
+                    np.where(over, rad - (ap.radius - margin), 0.0) * 1000.0 * w.crosstalk, jac)
             else:
-                ex = np.abs(h) - np.array(ap.half_width)
+                ex = np.abs(h) - (np.array(ap.half_width) - margin)
                 over = (ex > 0) & ok[..., None]
                 jac = None
                 if derivatives:
