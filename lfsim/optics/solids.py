@@ -36,7 +36,7 @@ import numpy as np
 from .. import backend
 from .components import components
 from .prescription import System
-from .surfaces import Shape, intersect, normal, sag
+from .surfaces import intersect, normal, sag
 
 #: Shortest distance counted as a hit (mm): the line's own start point is not one.
 _T_MIN = 1e-9
@@ -67,20 +67,6 @@ def aperture_grid(system: System, i: int, points: int) -> np.ndarray:
     return xy + np.array(ap.decenter)
 
 
-def _shape(tracer, system: System, i: int, V: np.ndarray, reps: int) -> Shape:
-    """Surface ``i``'s shape with per-lane coefficients: block b's repeated ``reps`` times."""
-    T = tracer.T
-    s = system.surfaces[i]
-    o = system.surfaces[s.same_as] if s.same_as is not None else s
-
-    def col(key):
-        return backend.from_numpy(T.Float, np.repeat(V[:, tracer.index[f"{o.name}.{key}"]], reps))
-
-    return Shape(col("curvature"), col("conic"), {a: col(f"A{a}") for a in o.asphere},
-                 {ij: col(f"x{ij[0]}y{ij[1]}") for ij in o.xy},
-                 backend.from_numpy(T.Float, np.full(len(V) * reps, 1.0 / o.norm_radius)))
-
-
 def _inside(ap, x, y) -> np.ndarray:
     dx, dy = x - ap.decenter[0], y - ap.decenter[1]
     if ap.kind == "circular":
@@ -101,7 +87,12 @@ def prism_thickness(tracer, values, points: int = 9) -> tuple[np.ndarray, list[t
     V = np.atleast_2d(np.asarray(values, dtype=np.float64))
     B = len(V)
     with dr.suspend_grad():
-        Rs, os_ = tracer.frames(tracer.params(values=V.ravel()))
+        packed = tracer.params(values=V.ravel())
+        Rs, os_ = tracer.frames(packed)
+
+        def shape(i, reps):  # surface i's shape, block b's coefficients on lanes b·reps … (b+1)·reps − 1
+            return tracer.shape(packed, i, backend.from_numpy(T.UInt32, np.repeat(np.arange(B, dtype=np.uint32), reps)))
+
         R = [np.stack([np.stack([np.asarray(Ri[a][b], dtype=np.float64) for b in range(3)], -1)
                        for a in range(3)], -2) for Ri in Rs]  # (B, 3, 3) each
         o = [np.stack([np.asarray(oi[a], dtype=np.float64) for a in range(3)], -1) for oi in os_]  # (B, 3)
@@ -110,7 +101,7 @@ def prism_thickness(tracer, values, points: int = 9) -> tuple[np.ndarray, list[t
             """Global points and unit normals (B, Q, 3) of surface i at local xy (Q, 2)."""
             Q = len(xy)
             X, Y = (backend.from_numpy(T.Float, np.tile(xy[:, k], B)) for k in (0, 1))
-            z, zx, zy, ok = sag(X, Y, _shape(tracer, system, i, V, Q))
+            z, zx, zy, ok = sag(X, Y, shape(i, Q))
             n = normal(zx, zy, T.Array3)
             dr.eval(z, n, ok)
             p = np.stack([np.tile(xy[:, 0], B), np.tile(xy[:, 1], B),
@@ -150,7 +141,7 @@ def prism_thickness(tracer, values, points: int = 9) -> tuple[np.ndarray, list[t
                     dl = np.einsum("bji,bqj->bqi", R[b], U)
                     pa = T.Array3(*backend.from_numpy(T.Float, *(pl[..., k].ravel() for k in range(3))))
                     da = T.Array3(*backend.from_numpy(T.Float, *(dl[..., k].ravel() for k in range(3))))
-                    t, hit, conv = intersect(pa, da, _shape(tracer, system, b, V, Q), T, True,
+                    t, hit, conv = intersect(pa, da, shape(b, Q), T, True,
                                              tracer.newton_tol, tracer.newton_max_iter)
                     dr.eval(t, hit, conv)
                     t = np.asarray(t, dtype=np.float64).reshape(B, Q)

@@ -174,6 +174,19 @@ class SequentialTracer:
     def _shape_owner(self, s: Surface) -> Surface:
         return self.system.surfaces[s.same_as] if s.same_as is not None else s
 
+    def shape(self, P, i: int, block) -> Shape:
+        """Surface ``i``'s shape (its ``same_as`` owner's coefficients), gathered per
+        lane from parameter block ``block`` (UInt32 array) of the packed ``P``."""
+        T = self.T
+        base = block * self.n_params
+        owner = self._shape_owner(self.system.surfaces[i])
+
+        def pr(key):
+            return dr.gather(T.Float, P, base + self.index[f"{owner.name}.{key}"], mode=self.reduce_mode)
+
+        return Shape(c=pr("curvature"), k=pr("conic"), asphere={o: pr(f"A{o}") for o in owner.asphere},
+                     xy={ij: pr(f"x{ij[0]}y{ij[1]}") for ij in owner.xy}, inv_norm=1.0 / owner.norm_radius)
+
     # --------------------------------------------------------------- frames
     def frames(self, P):
         """Local frames (R, o) of every surface, one entry per parameter block.
@@ -340,13 +353,7 @@ class SequentialTracer:
                 pl = pl - offset
 
             owner = self._shape_owner(s)
-            shape = Shape(
-                c=pr(f"{owner.name}.curvature"),
-                k=pr(f"{owner.name}.conic"),
-                asphere={o_: pr(f"{owner.name}.A{o_}") for o_ in owner.asphere},
-                xy={ij: pr(f"{owner.name}.x{ij[0]}y{ij[1]}") for ij in owner.xy},
-                inv_norm=1.0 / owner.norm_radius,
-            )
+            shape = self.shape(P, i, block)
             t, ok, conv = intersect(pl, dl, shape, T, owner.needs_newton,
                                     self.newton_tol, self.newton_max_iter)
             if offset is not None and cells == "per_surface":

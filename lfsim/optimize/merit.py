@@ -284,16 +284,17 @@ class IniMerit:
     def _edge_thickness(model: IniModel, values, i: int, j: int, radius: float) -> float:
         """Axial glass thickness between surfaces i and j at ``radius`` (sags from the
         tracer's surface model with parameters ``values``); −inf where a sag is undefined."""
-        from ..optics.surfaces import Shape, sag
+        import drjit as dr
 
-        T, names = model.tracer.T, model.tracer.names
+        from ..optics.surfaces import sag
+
+        tr = model.tracer
+        T, names = tr.T, tr.names
+        P, block = tr.params(values=values), dr.zeros(T.UInt32, 1)
 
         def z(k):
-            o = model.tracer._shape_owner(model.system.surfaces[k])
-            v = lambda key: T.Float(float(values[names.index(f"{o.name}.{key}")]))  # noqa: E731
-            shape = Shape(v("curvature"), v("conic"), {a: v(f"A{a}") for a in o.asphere},
-                          {ij: v(f"x{ij[0]}y{ij[1]}") for ij in o.xy}, 1.0 / o.norm_radius)
-            zz, _, _, inside = sag(T.Float(radius), T.Float(0.0), shape)
+            with dr.suspend_grad():
+                zz, _, _, inside = sag(T.Float(radius), T.Float(0.0), tr.shape(P, k, block))
             return float(zz[0]) if bool(inside[0]) else math.nan
 
         thick = float(values[names.index(f"{model.system.surfaces[i].name}.thickness")])
