@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
+from ..backend import compact_kernels, to_numpy
 from ..design.errors import DesignError
 from ..optics.tracer import RayState, Status
 
@@ -131,8 +132,16 @@ class IniModel:
         return v
 
     # ------------------------------------------------------- linearization
-    def _linearize(self, blocks: np.ndarray, base: np.ndarray, z_in: float, first: int, last: int,
-                   frame, on_surface: bool, lenslet=None):
+    def _linearize(self, *args, **kwargs):
+        """Affine map of ray states about ``base`` through surfaces first..last.
+
+        See :meth:`_linearize_lanes`; its few lanes compile as compact kernels.
+        """
+        with compact_kernels():
+            return self._linearize_lanes(*args, **kwargs)
+
+    def _linearize_lanes(self, blocks: np.ndarray, base: np.ndarray, z_in: float, first: int, last: int,
+                         frame, on_surface: bool, lenslet=None):
         """Affine map of ray states about ``base`` through surfaces first..last.
 
         Input: state (x, y, tan_x, tan_y) on the global plane ``z = z_in``.
@@ -167,15 +176,17 @@ class IniModel:
             x, y = pl.x - tx * pl.z, pl.y - ty * pl.z
         outs = [x, y, tx, ty]
         dr.forward_from(seed, flags=dr.ADFlag.ClearNone)  # outputs share interior nodes
-        status = np.asarray(out.status)
+        grads = [dr.grad(v) for v in outs]
+        # One kernel for the status, the values and their derivatives.
+        status, failed_at, *res = to_numpy(out.status, out.failed_at, *outs, *grads)
         if np.any(status != 0):
-            bad = int(np.asarray(out.failed_at)[np.argmax(status != 0)])
+            bad = int(failed_at[np.argmax(status != 0)])
             name = Status(int(status[status != 0][0])).name.lower()
             where = self.system.surfaces[bad].name if bad >= 0 else "?"
             raise IniModelError(f"{self.file}: the axis ray of the first-order model fails "
                                 f"({name}) at surface {where!r}")
-        vals = np.stack([np.asarray(v, dtype=np.float64).reshape(nb, 4)[:, 0] for v in outs], axis=1)
-        J = np.stack([np.asarray(dr.grad(v), dtype=np.float64).reshape(nb, 4) for v in outs], axis=1)
+        vals = np.stack([np.asarray(v, dtype=np.float64).reshape(nb, 4)[:, 0] for v in res[:4]], axis=1)
+        J = np.stack([np.asarray(v, dtype=np.float64).reshape(nb, 4) for v in res[4:]], axis=1)
         return vals, J
 
     def _lenslet_maps(self, blocks=None):

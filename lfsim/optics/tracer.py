@@ -521,14 +521,14 @@ class SequentialTracer:
     def frames_numpy(self, P=None) -> list[tuple[np.ndarray, np.ndarray]]:
         """Frames (R 3×3, o 3) of every surface for the first parameter block."""
         P = self.params() if P is None else P
-        with dr.suspend_grad():
+        with dr.suspend_grad(), backend.compact_kernels():
             Rs, os_ = self.frames(P)
-            out = []
-            for R, o in zip(Rs, os_):
-                Rn = np.array([[float(R[i][j][0]) for j in range(3)] for i in range(3)])
-                on = np.array([float(o[i][0]) for i in range(3)])
-                out.append((Rn, on))
-        return out
+            # One kernel for every frame (each entry read alone would launch its own).
+            flat = [R[i][j] for R in Rs for i in range(3) for j in range(3)] + [o[i] for o in os_ for i in range(3)]
+            vals = backend.to_numpy(*flat, dtype=np.float64)
+        nR = 9 * len(Rs)
+        return [(np.array([v[0] for v in vals[9 * k:9 * k + 9]]).reshape(3, 3),
+                 np.array([v[0] for v in vals[nR + 3 * k:nR + 3 * k + 3]])) for k in range(len(Rs))]
 
     def sag_numpy(self, i: int, x, y) -> np.ndarray:
         """Sag of surface ``i`` (the same model the tracer intersects) at local (x, y)."""
