@@ -283,7 +283,9 @@ def to_numpy(*values, dtype=None):
     out = []
     for v in values:
         if dr.depth_v(v) > 1 and not dr.is_tensor_v(v):
-            a = np.stack([np.asarray(v[i]) for i in range(len(v))], axis=1)
+            comps = [np.asarray(v[i]) for i in range(len(v))]
+            n = max(c.size for c in comps)
+            a = np.stack([np.broadcast_to(c, (n,)) for c in comps], axis=1)
         else:
             a = np.asarray(v)
         out.append(a.astype(dtype) if dtype is not None else a)

@@ -163,7 +163,8 @@ class IniModel:
         P = tr.params(values=blocks.ravel())
         lens = None
         if lenslet is not None:
-            lens = (dr.full(T.Int32, lenslet[0], 4 * nb), dr.full(T.Int32, lenslet[1], 4 * nb))
+            lens = (tr.const(lenslet[0], "Int32") + dr.zeros(T.Int32, 4 * nb),
+                    tr.const(lenslet[1], "Int32") + dr.zeros(T.Int32, 4 * nb))
         out = tr.trace(P, RayState(o, d), block=j // 4, lenslet=lens, first=first, last=last)
         R, og = frame
         Rt = T.Matrix3(*(dr.opaque(T.Float, float(v)) for v in R.T.ravel()))

@@ -135,6 +135,19 @@ class SequentialTracer:
         self.groups = system.array_groups()
         self._group_first = {idx[0]: g for g, idx in self.groups.items()}
         self._index_param = self._media_params()
+        self._opaque: dict = {}
+
+    def const(self, value, kind: str = "Float"):
+        """An opaque (evaluated) scalar: a design number that enters kernels as data.
+
+        A Python number in a Dr.Jit expression becomes a literal of the
+        kernel's IR, so a design that differs only in that number would
+        compile its kernels anew; an opaque scalar is read from memory."""
+        key = (kind, float(value) if kind == "Float" else int(value))
+        v = self._opaque.get(key)
+        if v is None:
+            v = self._opaque[key] = dr.opaque(getattr(self.T, kind), key[1])
+        return v
 
     def rays(self, origins, directions) -> RayState:
         """A :class:`RayState` from numpy (N, 3) origins and directions (copied)."""
@@ -185,7 +198,8 @@ class SequentialTracer:
             return dr.gather(T.Float, P, base + self.index[f"{owner.name}.{key}"], mode=self.reduce_mode)
 
         return Shape(c=pr("curvature"), k=pr("conic"), asphere={o: pr(f"A{o}") for o in owner.asphere},
-                     xy={ij: pr(f"x{ij[0]}y{ij[1]}") for ij in owner.xy}, inv_norm=1.0 / owner.norm_radius)
+                     xy={ij: pr(f"x{ij[0]}y{ij[1]}") for ij in owner.xy},
+                     inv_norm=self.const(1.0 / owner.norm_radius) if owner.xy else 1.0 / owner.norm_radius)
 
     # --------------------------------------------------------------- frames
     def frames(self, P):
@@ -326,6 +340,11 @@ class SequentialTracer:
                 arr = self.system.arrays[s.array]
                 px, py = pr(f"{arr.name}.pitch_x"), pr(f"{arr.name}.pitch_y")
                 cx, cy = pr(f"{arr.name}.center_x"), pr(f"{arr.name}.center_y")
+                # Lenslet counts as data: halves, centre offsets, last indices.
+                half_m, half_n = self.const(0.5 * arr.m), self.const(0.5 * arr.n)
+                mid_m, mid_n = self.const(0.5 * (arr.m - 1)), self.const(0.5 * (arr.n - 1))
+                cnt_m, cnt_n = self.const(arr.m, "Int32"), self.const(arr.n, "Int32")
+                top_m, top_n = self.const(arr.m - 1, "Int32"), self.const(arr.n - 1, "Int32")
                 if s.array not in cell or cells == "per_surface":
                     if lenslet is not None and i == first_group:
                         m_idx, n_idx = T.Int32(lenslet[0]), T.Int32(lenslet[1])
@@ -333,14 +352,14 @@ class SequentialTracer:
                         ok_z = dr.abs(dl.z) > 0.0
                         t0 = dr.select(ok_z, -pl.z / dr.select(ok_z, dl.z, 1.0), 0.0)
                         x0, y0 = dr.fma(dl.x, t0, pl.x), dr.fma(dl.y, t0, pl.y)
-                        m_idx = T.Int32(dr.floor(dr.detach((x0 - cx) / px) + 0.5 * arr.m))
-                        n_idx = T.Int32(dr.floor(dr.detach((y0 - cy) / py) + 0.5 * arr.n))
-                    outside = (m_idx < 0) | (m_idx >= arr.m) | (n_idx < 0) | (n_idx >= arr.n)
+                        m_idx = T.Int32(dr.floor(dr.detach((x0 - cx) / px) + half_m))
+                        n_idx = T.Int32(dr.floor(dr.detach((y0 - cy) / py) + half_n))
+                    outside = (m_idx < 0) | (m_idx >= cnt_m) | (n_idx < 0) | (n_idx >= cnt_n)
                     if cells == "per_surface":
                         # The vertex-plane crossing is only a first guess: start
                         # from the nearest edge cell; the hit on the face decides.
-                        m_idx = dr.clip(m_idx, 0, arr.m - 1)
-                        n_idx = dr.clip(n_idx, 0, arr.n - 1)
+                        m_idx = dr.clip(m_idx, 0, top_m)
+                        n_idx = dr.clip(n_idx, 0, top_n)
                     else:
                         fail(outside, Status.VIGNETTED, i)
                         m_idx = dr.select(outside, 0, m_idx)
@@ -350,8 +369,8 @@ class SequentialTracer:
                         lens_m = dr.select(outside, -1, m_idx)
                         lens_n = dr.select(outside, -1, n_idx)
                 m_idx, n_idx = cell[s.array]
-                xm = cx + (T.Float(m_idx) - 0.5 * (arr.m - 1)) * px
-                yn = cy + (T.Float(n_idx) - 0.5 * (arr.n - 1)) * py
+                xm = cx + (T.Float(m_idx) - mid_m) * px
+                yn = cy + (T.Float(n_idx) - mid_n) * py
                 offset = T.Array3(xm, yn, 0.0)
                 pl = pl - offset
 
@@ -363,12 +382,12 @@ class SequentialTracer:
                 # The vertex-plane crossing picked the cell; near a seam the hit
                 # on the curved face can lie in the neighbour: move there once.
                 hit0 = dr.fma(dl, dr.select(ok, t, 0.0), pl) + offset
-                m2 = T.Int32(dr.floor(dr.detach((hit0.x - cx) / px) + 0.5 * arr.m))
-                n2 = T.Int32(dr.floor(dr.detach((hit0.y - cy) / py) + 0.5 * arr.n))
-                moved = ok & ((m2 != m_idx) | (n2 != n_idx)) & (m2 >= 0) & (m2 < arr.m) & (n2 >= 0) & (n2 < arr.n)
+                m2 = T.Int32(dr.floor(dr.detach((hit0.x - cx) / px) + half_m))
+                n2 = T.Int32(dr.floor(dr.detach((hit0.y - cy) / py) + half_n))
+                moved = ok & ((m2 != m_idx) | (n2 != n_idx)) & (m2 >= 0) & (m2 < cnt_m) & (n2 >= 0) & (n2 < cnt_n)
                 m_idx, n_idx = dr.select(moved, m2, m_idx), dr.select(moved, n2, n_idx)
-                offset2 = T.Array3(cx + (T.Float(m_idx) - 0.5 * (arr.m - 1)) * px,
-                                   cy + (T.Float(n_idx) - 0.5 * (arr.n - 1)) * py, 0.0)
+                offset2 = T.Array3(cx + (T.Float(m_idx) - mid_m) * px,
+                                   cy + (T.Float(n_idx) - mid_n) * py, 0.0)
                 pl = pl + offset - offset2
                 offset = offset2
                 t, ok, conv = intersect(pl, dl, shape, T, owner.needs_newton,
@@ -381,13 +400,13 @@ class SequentialTracer:
             # Apertures (in lenslet-relative coordinates inside an array).
             ap = s.aperture if clip else None
             if ap is not None:
-                ax, ay = hit.x - ap.decenter[0], hit.y - ap.decenter[1]
+                ax, ay = hit.x - self.const(ap.decenter[0]), hit.y - self.const(ap.decenter[1])
                 slack = 1.0 + self.edge_tol
                 if ap.kind == "circular":
-                    outside = dr.fma(ax, ax, ay * ay) > (ap.radius * slack) ** 2
+                    outside = dr.fma(ax, ax, ay * ay) > self.const((ap.radius * slack) ** 2)
                 else:
-                    outside = ((dr.abs(ax) > ap.half_width[0] * slack)
-                               | (dr.abs(ay) > ap.half_width[1] * slack))
+                    outside = ((dr.abs(ax) > self.const(ap.half_width[0] * slack))
+                               | (dr.abs(ay) > self.const(ap.half_width[1] * slack)))
                 fail(outside, Status.VIGNETTED, i)
             if offset is not None and clip:
                 half = 0.5 * (1.0 + self.edge_tol)
@@ -509,15 +528,15 @@ class SequentialTracer:
         dr.enable_grad(seed)
         P = T.Float(np.tile(values, K).astype(T.np_dtype)) + seed * T.Float(mask.astype(T.np_dtype))
         j = dr.arange(T.UInt32, K * N)
-        ray_idx = j % N
+        ray_idx = j % self.const(N, "UInt32")  # counts as data: one kernel for any N, K
         rep = RayState(dr.gather(T.Array3, rays.p, ray_idx), dr.gather(T.Array3, rays.d, ray_idx))
-        out = self.trace(P, rep, block=j // N)
+        out = self.trace(P, rep, block=j // self.const(N, "UInt32"))
         outs = outputs(out) if outputs else [out.p.x, out.p.y, out.p.z, out.d.x, out.d.y, out.d.z]
         dr.forward_from(seed)
-        ok = np.asarray(out.status) == 0
-        J = np.stack([np.where(ok, np.asarray(dr.grad(v), dtype=np.float64), 0.0).reshape(K, N)
-                      for v in outs], axis=1)
-        status = np.asarray(out.status)[:N].astype(np.int64)
+        st, *grads = backend.to_numpy(out.status, *(dr.grad(v) for v in outs))
+        ok = st == 0
+        J = np.stack([np.where(ok, np.asarray(g, dtype=np.float64), 0.0).reshape(K, N) for g in grads], axis=1)
+        status = st[:N].astype(np.int64)
         return J, status
 
     # ------------------------------------------------------- numpy helpers
