@@ -162,6 +162,22 @@ def types(precision: str = "float64") -> SimpleNamespace:
     return _types_cache[key]
 
 
+def _aligned(a) -> np.ndarray:
+    """A contiguous copy of ``a`` on a 64-byte boundary.
+
+    The copy kernel of :func:`from_numpy` reads the numpy buffer itself, and
+    its IR states the buffer's alignment: a fixed alignment keeps that one
+    small kernel from compiling again for each allocation."""
+    a = np.asarray(a)
+    if a.ctypes.data % 64 == 0 and a.flags.c_contiguous:
+        return a
+    buf = np.empty(a.nbytes + 64, dtype=np.uint8)
+    off = (-buf.ctypes.data) % 64
+    out = buf[off:off + a.nbytes].view(a.dtype).reshape(a.shape)
+    out[...] = a
+    return out
+
+
 def from_numpy(Type, *arrays):
     """Dr.Jit arrays of ``Type`` holding copies of numpy arrays (one kernel).
 
@@ -175,7 +191,7 @@ def from_numpy(Type, *arrays):
     import drjit as dr
 
     one = dr.opaque(Type, 1)
-    out = tuple(Type(np.ascontiguousarray(a)) * one for a in arrays)
+    out = tuple(Type(_aligned(a)) * one for a in arrays)
     dr.eval(*out)
     return out[0] if len(out) == 1 else out
 

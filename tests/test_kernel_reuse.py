@@ -1,0 +1,119 @@
+"""Kernels depend on a design's structure, never on its numbers or on counts.
+
+Dr.Jit compiles a kernel per distinct IR; a Python number in an expression is
+a literal of that IR. These tests run a workload twice, the second time on a
+design whose every number differs (or with another ray / column count), and
+read ``dr.kernel_history()``: the second run must compile nothing.
+"""
+
+from __future__ import annotations
+
+import copy
+import tomllib
+
+import drjit as dr
+import numpy as np
+import pytest
+
+import lfsim
+from lfsim.design.design import Design
+from lfsim.ini import subsystems
+from lfsim.ini.model import IniModel
+
+
+def _raw(path):
+    with open(path, "rb") as f:
+        return tomllib.load(f)
+
+
+def _perturbed(raw: dict, rel: float) -> dict:
+    """A copy whose surface, object and array floats move by ``rel`` (relative; 0 → +rel)."""
+    out = copy.deepcopy(raw)
+
+    def walk(d):
+        for k, v in d.items():
+            if isinstance(v, bool) or k in ("material", "name"):
+                continue
+            if isinstance(v, float) and np.isfinite(v):
+                d[k] = v * (1.0 + rel) if v != 0.0 else rel
+            elif isinstance(v, dict):
+                walk(v)
+
+    for s in out.get("surfaces", []):
+        walk(s)
+    for key in ("object", "arrays"):
+        if key in out:
+            walk(out[key])
+    return out
+
+
+def _compiled(run) -> int:
+    """Number of kernels ``run()`` had to compile (not found in a kernel cache)."""
+    dr.eval()
+    dr.sync_thread()
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        dr.kernel_history()  # clear
+        run()
+        dr.sync_thread()
+        hist = [k for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT]
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    return sum(1 for k in hist if not (k["cache_hit"] or k["cache_disk"]))
+
+
+def _trace_bundle(design):
+    rng = np.random.default_rng(1)
+    n = 257
+    o = np.column_stack([rng.uniform(-3, 3, n), rng.uniform(-3, 3, n), np.full(n, -5.0)])
+    d = np.column_stack([rng.uniform(-0.1, 0.1, n), rng.uniform(-0.1, 0.1, n), np.ones(n)])
+    return design.trace(o, d)
+
+
+def test_design_trace_compiles_once_for_any_numbers(scenes):
+    raw = _raw(scenes / "cooke_triplet.toml")
+    a = Design.from_dict(raw, "a.toml")
+    b = Design.from_dict(_perturbed(raw, 0.013), "b.toml")
+    assert b.system.surfaces[0].curvature != a.system.surfaces[0].curvature
+    _trace_bundle(a)
+    assert _compiled(lambda: _trace_bundle(b)) == 0
+
+
+def _ini_workload(design):
+    model = IniModel(design)
+    subs = subsystems.sample(model, stride=(8, 4), symmetry="none", depths=[0])
+    rho = np.array([[0.0, 0.0], [0.5, 0.0], [0.0, -0.5], [0.3, 0.3]])
+    b = subsystems.trace(model, subs, rho)
+    assert b.ok.mean() > 0.5
+    return model, b
+
+
+@pytest.mark.parametrize("scene", ["ini_freeform.toml", "ini_coaxial.toml"])
+def test_ini_model_and_subsystem_trace_compile_once_for_any_numbers(scenes, scene):
+    raw = _raw(scenes / scene)
+    a = Design.from_dict(raw, "a.toml")
+    b = Design.from_dict(_perturbed(raw, 2e-4), "b.toml")
+    ma, _ = _ini_workload(a)
+    mb = None
+
+    def run():
+        nonlocal mb
+        mb, _ = _ini_workload(b)
+
+    assert _compiled(run) == 0
+    assert not np.allclose(ma.values0, mb.values0)
+
+
+def test_jacobian_compiles_once_for_any_column_and_ray_count(scenes):
+    model = IniModel(lfsim.load(scenes / "ini_freeform.toml"))
+    names = [n for n in model.tracer.names if n.endswith((".curvature", ".thickness", ".tilt_x"))]
+    rng = np.random.default_rng(3)
+
+    def jac(cols, nrays):
+        s = model.lenslet_center(8, 4) + rng.uniform(-0.1, 0.1, (nrays, 2))
+        rho = rng.uniform(-0.5, 0.5, (nrays, 2))
+        return subsystems.trace_rays_jacobian(model, s, 8, 4, rho, 0, [(n, None) for n in cols])
+
+    j1 = jac(names[:5], 7)
+    assert j1.d_pos.shape == (7, 2, 5)
+    assert _compiled(lambda: jac(names[:9], 11)) == 0
