@@ -121,7 +121,9 @@ def test_render_ad_matches_central_differences(mesh_setup):
     for p in doc["params"]:
         assert p["fd_step"] <= gc.fd_step(p["name"], p["value"], p["unit"], gc.MESH_REL_STEP), p
         assert np.isfinite(p["ad"]) and p["ad"] != 0.0, p
-        assert p["interior_rel_err"] <= 0.02, p
+        # 2 % for AD's float32 arithmetic and the slope's truncation, plus three standard
+        # errors of the float32 difference itself (its spread over the 4 steps it combines).
+        assert p["interior_rel_err"] <= 0.02 + 3.0 * p["interior_noise_rel"], p
         assert p["forward_reverse_rel"] <= gc.FORWARD_REVERSE_TOL["mesh"], p
 
 
@@ -214,7 +216,7 @@ def test_fresnel_index_gradient_forward_reverse_and_central_differences(mesh_set
     p = doc["params"][0]
     assert np.isfinite(p["ad"]) and p["ad"] != 0.0, p
     assert p["forward_reverse_rel"] <= gc.FORWARD_REVERSE_TOL["mesh"], p
-    assert p["interior_rel_err"] <= 0.02, p
+    assert p["interior_rel_err"] <= 0.02 + 3.0 * p["interior_noise_rel"], p
 
 
 def test_gradcheck_cli_mesh_path(tmp_path):

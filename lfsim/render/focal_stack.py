@@ -103,12 +103,18 @@ def similarity(img: np.ndarray, ref: np.ndarray) -> tuple[float, float]:
             float(peak_signal_noise_ratio(b, a, data_range=rng)))
 
 
-def render(scene_dict: dict) -> tuple[np.ndarray, float]:
-    """Render a Mitsuba scene dict; (image (H, W, 3) float32, seconds)."""
+def render(scene_dict, sensor: dict | None = None) -> tuple[np.ndarray, float]:
+    """Render a Mitsuba scene (a dict, or a loaded ``mi.Scene``); (image (H, W, 3) float32, seconds).
+
+    ``sensor``: a sensor dict rendered instead of the scene's own, so one
+    loaded scene (its meshes and their acceleration structure) serves every
+    eye of a focal stack.
+    """
     mi = mitsuba()
     t0 = time.perf_counter()
-    scene = mi.load_dict(scene_dict)
-    img = np.array(mi.render(scene), dtype=np.float32)[..., :3]
+    scene = mi.load_dict(scene_dict) if isinstance(scene_dict, dict) else scene_dict
+    kw = {} if sensor is None else {"sensor": mi.load_dict(sensor)}
+    img = np.array(mi.render(scene, **kw), dtype=np.float32)[..., :3]
     return img, time.perf_counter() - t0
 
 
@@ -180,18 +186,27 @@ def focal_stack(design, content, out_dir, spec: FocalStackSpec | None = None, pr
         vw = np.eye(4)
         vw[:3, :3], vw[:3, 3] = model.R_vw, model.o_vw
 
+    loaded: dict = {}
+
     def scene_for(kind, eye):
-        """The display through the optics (analytic or mesh path), or the content seen directly."""
+        """The display through the optics (analytic or mesh path), or the content seen
+        directly: the scene (loaded once per kind) and this eye's sensor dict."""
         if kind == "display" and shapes is not None:
-            return {"type": "scene", "display": layout.emitter_dict(display), **shapes,
-                    "sensor": eye.sensor_dict(vw, spec.spp, spec.seed), "integrator": MESH_INTEGRATOR}
-        if kind == "display":
-            return {"type": "scene", "display": layout.emitter_dict(display),
-                    "sensor": display_sensor(eye, key, spec.spp, spec.seed), "integrator": INTEGRATOR}
-        sd = scene_dict(content)
-        sd["sensor"] = eye.sensor_dict(None, spec.spp, spec.seed)
-        sd["integrator"] = INTEGRATOR
-        return sd
+            sensor = eye.sensor_dict(vw, spec.spp, spec.seed)
+        elif kind == "display":
+            sensor = display_sensor(eye, key, spec.spp, spec.seed)
+        else:
+            sensor = eye.sensor_dict(None, spec.spp, spec.seed)
+        if kind not in loaded:
+            if kind == "display":
+                sd = {"type": "scene", "display": layout.emitter_dict(display), **(shapes or {}),
+                      "integrator": MESH_INTEGRATOR if shapes is not None else INTEGRATOR}
+            else:
+                sd = scene_dict(content)
+                sd["integrator"] = INTEGRATOR
+            loaded[kind] = mi.load_dict(sd)
+        return loaded[kind], sensor
+
     images = []
     try:
         jobs = [(f, kind) for f in spec.focus_mm for kind in (("display", "natural") if spec.natural
@@ -204,7 +219,7 @@ def focal_stack(design, content, out_dir, spec: FocalStackSpec | None = None, pr
         by_focus = {}
         for f, kind in it:
             eye = EyeSpec(spec.eye_model, spec.pupil_diameter_mm, float(f), (fx, fy), (W, H))
-            img, secs = render(scene_for(kind, eye))
+            img, secs = render(*scene_for(kind, eye))
             if not np.all(np.isfinite(img)):
                 raise FloatingPointError(f"non-finite pixels in the {kind} image at {f:g} mm")
             tag = f"{kind}_{f:g}mm"
@@ -217,7 +232,7 @@ def focal_stack(design, content, out_dir, spec: FocalStackSpec | None = None, pr
             log(f"{kind:8s} focus {f:7.1f} mm: {W}x{H} at {spec.spp} spp in {secs:.1f} s")
         # The sharp reference: the natural view through a pinhole pupil (no defocus).
         eye = EyeSpec("ideal", 0.01, math.inf, (fx, fy), (W, H))
-        reference, secs = render(scene_for("natural", eye))
+        reference, secs = render(*scene_for("natural", eye))
         write_exr(out / "reference_pinhole.exr", reference,
                   dict(base_meta, kind="reference", pupil_mm=0.01, spp=spec.spp, render_s=round(secs, 3)))
         write_png(out / "reference_pinhole.png", reference)

@@ -170,6 +170,10 @@ class Difference:
     fd_interior: float  # the same with every sample whose path changed kept at its θ value
     edge_samples: int  # samples whose discrete path changed (cell, vignetting, on/off display)
     flagged: list | None = None  # per focus: bool (n_samples,), the samples held at θ
+    #: Standard error of ``fd_interior`` from the spread of the central differences at
+    #: the steps j·h it combines (``points`` > 1; 0 otherwise): the float32 rounding
+    #: noise of the estimate itself, conservative where the steps' truncation differs.
+    fd_interior_noise: float = 0.0
 
     @property
     def boundary_term(self) -> float:
@@ -315,11 +319,17 @@ def difference(loss: RenderLoss, values, i: int, h: float, points: int = 1, kink
                 L_all[j][side].append(f)
                 L_int[j][side].append(np.where(flip[:, None], f0, f))
 
-    def slope(L):
-        num = sum(j * j * (_numpy_loss(loss, L[j][1]) - _numpy_loss(loss, L[j][0])) / (2 * j * h) for j in js)
-        return num / sum(j * j for j in js)
+    def diffs(L):
+        return np.array([(_numpy_loss(loss, L[j][1]) - _numpy_loss(loss, L[j][0])) / (2 * j * h) for j in js])
 
-    return Difference(h, slope(L_all), slope(L_int), n, flags)
+    w = np.array([j * j for j in js], dtype=np.float64)
+    D_all, D_int = diffs(L_all), diffs(L_int)
+    fd_int = float(np.sum(w * D_int) / np.sum(w))
+    noise = 0.0
+    if len(js) > 1:
+        # Weighted spread of the D_j about their mean, over (points − 1) degrees of freedom.
+        noise = float(np.sqrt(np.sum(w * (D_int - fd_int) ** 2) / np.sum(w) / (len(js) - 1)))
+    return Difference(h, float(np.sum(w * D_all) / np.sum(w)), fd_int, n, flags, noise)
 
 
 def _texel_cell(lay, x, y):
@@ -408,6 +418,8 @@ def gradcheck(renderer, targets, names: list[str], values=None, rel_step: float 
                "flagged_samples": main.edge_samples,
                "fd": main.fd, "fd_interior": main.fd_interior, "fd_step": main.step, "rule_step": h_rule,
                "rel_err": _rel(ad, main.fd), "interior_rel_err": _rel(ad_kept, main.fd_interior),
+               "interior_noise_rel": (main.fd_interior_noise / abs(main.fd_interior)
+                                      if main.fd_interior != 0.0 else 0.0),
                "boundary_term": B, "edge_step": edge.step, "edge_samples": edge.edge_samples,
                "bias": (-B / total) if total != 0.0 else 0.0,
                "boundary": bool(edge.edge_samples > 0 and abs(B) >= BOUNDARY_SHARE * abs(total)),
