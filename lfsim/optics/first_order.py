@@ -26,6 +26,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from ..backend import compact_kernels, to_numpy
 from .prescription import System
 
 
@@ -180,30 +181,31 @@ def find_axis_ray(tracer, P_np, stop: int, n_obj: float, object_distance: float)
     P = tracer.params(values=P_np)
     R_stop, o_stop = tracer.frames_numpy(P)[stop]
 
-    def shoot(u):
+    def shoot(U):
+        """Rays of aim parameters U (K, 2): stop hits in the stop frame (K, 2), status, o, d."""
+        K = len(U)
         if math.isinf(object_distance):
-            o = np.array([[u[0], u[1], 0.0]])
-            d = np.array([[0.0, 0.0, 1.0]])
+            o = np.column_stack([U, np.zeros(K)])
+            d = np.tile([0.0, 0.0, 1.0], (K, 1))
         else:
-            o = np.array([[0.0, 0.0, -object_distance]])
-            d = np.array([[u[0], u[1], 1.0]])
-        with dr.suspend_grad():
-            out = tracer.trace(P, tracer.rays(o, d), record=True)
-        p_stop = np.array([float(out.path[stop][0][i][0]) for i in range(3)])
-        local = R_stop.T @ (p_stop - o_stop)
-        return local[:2], int(out.status[0]), o[0], d[0] / np.linalg.norm(d[0])
+            o = np.tile([0.0, 0.0, -object_distance], (K, 1))
+            d = np.column_stack([U, np.ones(K)])
+        with dr.suspend_grad(), compact_kernels():
+            out = tracer.trace(P, tracer.rays(o, d), last=stop)
+            p_stop, status = to_numpy(out.p, out.status)  # one kernel
+        local = (p_stop - o_stop) @ R_stop
+        return local[:, :2], status.astype(np.int64), o, d / np.linalg.norm(d, axis=1, keepdims=True)
 
     u = np.zeros(2)
+    h = 1e-6
+    steps = np.array([[0.0, 0.0], [h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]])
     for _ in range(30):
-        r, st, o, d = shoot(u)
+        # The ray and its four central-difference neighbours in one launch.
+        r5, st5, o5, d5 = shoot(u + steps)
+        r, o, d = r5[0], o5[0], d5[0]
         if np.max(np.abs(r)) < 1e-13:
             break
-        h = 1e-6
-        J = np.empty((2, 2))
-        for k in range(2):
-            du = np.zeros(2)
-            du[k] = h
-            J[:, k] = (shoot(u + du)[0] - shoot(u - du)[0]) / (2 * h)
+        J = np.column_stack([(r5[1] - r5[2]) / (2 * h), (r5[3] - r5[4]) / (2 * h)])
         u = u - np.linalg.solve(J, r)
     return o, d
 
@@ -249,12 +251,18 @@ def parabasal_matrices(tracer, wavelength_nm: float):
         # An odd number of reflections mirrors the image; flip e1 so x keeps its sense.
         return -1.0 if sum(s.interaction in ("reflect", "tir") for s in system.surfaces[: k + 1]) % 2 else 1.0
 
+    # Every value and derivative needed below in one (compact) kernel.
+    last = len(system.surfaces) - 1
+    need = [stop, last] + ([last - 1] if last >= 1 else [])
+    with compact_kernels():
+        flat = [v for k in need for v in (out.path[k][0], out.path[k][1])]
+        vals = to_numpy(*flat, *(dr.grad(v) for v in flat[:4]))
+    got = {k: (vals[2 * j], vals[2 * j + 1]) for j, k in enumerate(need)}
+    grads = {k: (vals[len(flat) + 2 * j], vals[len(flat) + 2 * j + 1]) for j, k in enumerate(need[:2])}
+
     def jac(k, n_here, up_frame):
-        p, d = out.path[k]
-        p0 = np.array([float(p[i][0]) for i in range(3)])
-        dir0 = np.array([float(d[i][0]) for i in range(3)])
-        Jp = np.stack([np.asarray(dr.grad(p[i])) for i in range(3)], axis=1)  # (4 rays, 3)
-        Jd = np.stack([np.asarray(dr.grad(d[i])) for i in range(3)], axis=1)
+        p0, dir0 = got[k][0][0].astype(np.float64), got[k][1][0].astype(np.float64)
+        Jp, Jd = grads[k]  # (4 rays, 3)
         # Position derivative projected on the plane ⟂ the OAR through the hit point.
         Jp = Jp - np.outer(Jp @ dir0, dir0)
         f1, f2 = _perp_basis(dir0, up_frame)
@@ -271,13 +279,11 @@ def parabasal_matrices(tracer, wavelength_nm: float):
     Jf, _, _ = jac(stop, n_stop, up_of(stop))
     Jt, p_img, dir_img = jac(len(system.surfaces) - 1, n_img, up_of(len(system.surfaces) - 1))
     # Axial distance from the last surface before the image to the image surface.
-    with dr.suspend_grad():
-        if len(system.surfaces) >= 2:
-            pl = out.path[-2][0]
-            p_last = np.array([float(pl[i][0]) for i in range(3)])
-            t_last = float(np.dot(p_img - p_last, dir_img))
-        else:
-            t_last = 0.0
+    if len(system.surfaces) >= 2:
+        p_last = got[last - 1][0][0].astype(np.float64)
+        t_last = float(np.dot(p_img - p_last, dir_img))
+    else:
+        t_last = 0.0
     Mx_f, Mx_t = Jf[np.ix_([0, 2], [0, 2])], Jt[np.ix_([0, 2], [0, 2])]
     My_f, My_t = Jf[np.ix_([1, 3], [1, 3])], Jt[np.ix_([1, 3], [1, 3])]
     return Mx_f, Mx_t, My_f, My_t, n_obj, n_img, t_last

@@ -39,6 +39,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from ..backend import to_numpy
 from ..optics.first_order import paraxial_matrices
 from ..optics.materials import AIR, abbe
 from ..optics.prescription import Aperture, Surface, System
@@ -219,9 +220,8 @@ def _trace(tracer, P, o, d, first=0, clip=False):
 
     with dr.suspend_grad():
         out = tracer.trace(P, tracer.rays(o, d), first=first, clip=clip)
-    p = np.stack([np.asarray(out.p[i], dtype=np.float64) for i in range(3)], axis=1)
-    dd = np.stack([np.asarray(out.d[i], dtype=np.float64) for i in range(3)], axis=1)
-    return p, dd, np.asarray(out.status)
+        p, dd, status = to_numpy(out.p, out.d, out.status)  # one kernel
+    return p.astype(np.float64), dd.astype(np.float64), status
 
 
 @dataclass(frozen=True)
@@ -331,8 +331,9 @@ def pupil_table(table: ChiefRayTable, accommodation: float, wavelength_nm: float
         # untilted and on axis, so its local x, y are the global ones).
         with dr.suspend_grad():
             out = rev.trace(P, rev.rays(o, E - o), last=1, clip=False)
-        hit = np.hypot(np.asarray(out.p[0]), np.asarray(out.p[1]))
-        ok = ((np.asarray(out.status) == 0) & (hit <= iris)).reshape(F, n_dir)
+            px, py, status = to_numpy(out.p.x, out.p.y, out.status)
+        hit = np.hypot(px, py)
+        ok = ((status == 0) & (hit <= iris)).reshape(F, n_dir)
         lo = np.where(ok, mid, lo)
         hi = np.where(ok, hi, mid)
     # Boundary points relative to the chief crossing (units of ρ), x along −u in S... use x.

@@ -40,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..backend import to_numpy
 from ..optics.prescription import Aperture
 from . import bsdfs as _bsdfs
 from . import meshes as _m
@@ -70,9 +71,8 @@ def surface_sides(model: _m.SurfaceModel) -> np.ndarray:
         d = np.column_stack([gx * r0, gy * r0, np.zeros_like(gx)]) - o
     with dr.suspend_grad():
         out = tr.trace(tr.params(values=model.values), tr.rays(o, d), record=True)
-        dr.eval(out.status, out.failed_at)
-        failed = np.asarray(out.failed_at)
-        dirs = [np.column_stack([np.asarray(q.x), np.asarray(q.y), np.asarray(q.z)]) for _, q in out.path]
+        # One kernel for every surface's directions (read one by one, each would re-trace).
+        failed, *dirs = to_numpy(out.failed_at, *(q for _, q in out.path))
     d_in = [d / np.linalg.norm(d, axis=1, keepdims=True)] + dirs[:-1]
     sides = np.ones(n_s)
     for i in range(n_s):
@@ -139,9 +139,7 @@ def footprints(design, model: _m.SurfaceModel) -> dict[int, tuple[np.ndarray, np
     tr = model.tracer
     with dr.suspend_grad():
         out = tr.trace(tr.params(values=model.values), tr.rays(o, d), record=True)
-        dr.eval(out.failed_at)
-        failed = np.asarray(out.failed_at)
-        pts = [np.column_stack([np.asarray(p.x), np.asarray(p.y), np.asarray(p.z)]) for p, _ in out.path]
+        failed, *pts = to_numpy(out.failed_at, *(p for p, _ in out.path))
     boxes: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     for i, s in enumerate(model.system.surfaces):
         ok = (failed < 0) | (failed > i)
