@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..backend import from_numpy
 from ..optics.prescription import System
 from .loader import ini_from_dict, load_system, optimize_from_dict, system_from_dict
 
@@ -126,43 +125,22 @@ class Design:
         d = _as_rays("directions", directions)
         if o.shape != d.shape:
             raise ValueError(f"origins {o.shape} and directions {d.shape} differ in shape")
-        if np.any(np.linalg.norm(d, axis=1) == 0):
+        if not np.all(np.any(d != 0.0, axis=1)):
             raise ValueError("directions contain a zero vector")
         lam = self.wavelength(wavelength_nm)
         if len(o) == 0:
             e3, e1 = np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
             return TraceResult(e3, e3.copy(), e1, np.zeros(0), e1.copy(), np.zeros((0, 2), np.int64),
                                np.zeros((len(self.surfaces), 0, 3)) if record else None)
-        tr = self.tracer(precision)
-        T = tr.T
-        import drjit as dr
-
-
-        lens = None
+        lz = None
         if lenslet is not None:
             lz = np.asarray(lenslet)
             if lz.shape != (o.shape[0], 2) or not np.issubdtype(lz.dtype, np.integer):
                 raise ValueError(f"lenslet must be an (N, 2) integer array, got {lz.shape} {lz.dtype}")
             if not self.system.arrays:
                 raise ValueError("lenslet given but the design has no lenslet array")
-            lens = from_numpy(T.Int32, lz[:, 0].astype(np.int32), lz[:, 1].astype(np.int32))
-        with dr.suspend_grad():
-            out = tr.trace(tr.params(lam), tr.rays(o, d), lenslet=lens, record=record)
-            dr.eval(out.p, out.d, out.status, out.opl, out.failed_at, out.lenslet_m, out.lenslet_n)
-
-        def np3(v):
-            return np.stack([np.asarray(v.x), np.asarray(v.y), np.asarray(v.z)], axis=1).astype(np.float64)
-
-        path = np.stack([np3(q) for q, _ in out.path]) if record else None
-        return TraceResult(
-            positions=np3(out.p),
-            directions=np3(out.d),
-            status=np.asarray(out.status).astype(np.int64),
-            opl=np.asarray(out.opl).astype(np.float64),
-            failed_at=np.asarray(out.failed_at).astype(np.int64),
-            lenslet=np.stack([np.asarray(out.lenslet_m), np.asarray(out.lenslet_n)], axis=1).astype(np.int64),
-            path=path,
-        )
+        res = self.tracer(precision).trace_numpy(o, d, lam, lenslet=lz, record=record)
+        return TraceResult(path=res.pop("path", None), **res)
 
     def first_order(self, wavelength_nm: float | None = None, method: str = "auto"):
         """First-order properties (see :func:`lfsim.optics.first_order.first_order`)."""

@@ -487,6 +487,61 @@ class SequentialTracer:
         o = dr.gather(T.Array3, os_[i], block, mode=self.reduce_mode)
         return R @ p + o, R @ d
 
+    # ---------------------------------------------------------- numpy API
+    def trace_numpy(self, origins, directions, wavelength_nm: float | None = None, lenslet=None,
+                    record: bool = False, values=None) -> dict:
+        """:meth:`trace` with numpy (N, 3) rays in and numpy arrays out, no gradients.
+
+        The kernel itself moves the data: it gathers the rays from the
+        (N, 3) buffers (read in place, without a host-side transpose or
+        copy) and scatters positions and directions into (N, 3) outputs, so
+        the host work around a launch is a few allocations. Returns a dict
+        with ``positions``, ``directions`` (N, 3) float64, ``status``,
+        ``opl``, ``failed_at``, ``lenslet`` (N, 2) and, with ``record``,
+        ``path`` (S, N, 3).
+        """
+        T = self.T
+        o = np.ascontiguousarray(origins, dtype=T.np_dtype).reshape(-1, 3)
+        d = np.ascontiguousarray(directions, dtype=T.np_dtype).reshape(-1, 3)
+        N = len(o)
+        with dr.suspend_grad():
+            i3 = dr.arange(T.UInt32, N) * 3
+            i2 = dr.arange(T.UInt32, N) * 2
+
+            def get(buf):
+                return T.Array3(*(dr.gather(T.Float, buf, i3 + c) for c in range(3)))
+
+            lens = None
+            if lenslet is not None:
+                lz = T.Int32(np.ascontiguousarray(lenslet, dtype=np.int32).ravel())
+                lens = (dr.gather(T.Int32, lz, i2), dr.gather(T.Int32, lz, i2 + 1))
+            P = self.params(wavelength_nm, values=values)
+            out = self.trace(P, RayState(get(T.Float(o.ravel())), get(T.Float(d.ravel()))),
+                             lenslet=lens, record=record)
+
+            def put(v, typ=T.Float, k=3):
+                buf = dr.empty(typ, k * N)
+                for c in range(k):
+                    dr.scatter(buf, v[c], (i3 if k == 3 else i2) + c)
+                return buf
+
+            pos, dirs = put(out.p), put(out.d)
+            cells = put((out.lenslet_m, out.lenslet_n), T.Int32, 2)
+            path = [put(q) for q, _ in out.path] if record else []
+            dr.eval(pos, dirs, cells, out.status, out.opl, out.failed_at, *path)
+
+        def f64(buf, k=3):
+            return np.asarray(buf).reshape(N, k).astype(np.float64, copy=False)
+
+        res = {"positions": f64(pos), "directions": f64(dirs),
+               "status": np.asarray(out.status).astype(np.int64),
+               "opl": np.asarray(out.opl).astype(np.float64, copy=False),
+               "failed_at": np.asarray(out.failed_at).astype(np.int64),
+               "lenslet": np.asarray(cells).reshape(N, 2).astype(np.int64)}
+        if record:
+            res["path"] = np.stack([f64(q) for q in path])
+        return res
+
     # ------------------------------------------------------------ jacobian
     def jacobian(self, values, rays: RayState, names: list[str], outputs=None):
         """Forward-mode Jacobian of ray outputs w.r.t. named parameters, in one launch.
