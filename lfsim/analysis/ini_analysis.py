@@ -42,6 +42,16 @@ class PupilSets:
             start += len(v)
         return cls(np.concatenate(list(parts.values())), slices, weights)
 
+    def subset(self, names) -> "PupilSets":
+        """Only the named sample sets (same samples and weights), e.g. what one metric needs."""
+        slices, start = {}, 0
+        for k in names:
+            n = self.slices[k].stop - self.slices[k].start
+            slices[k] = slice(start, start + n)
+            start += n
+        rho = np.concatenate([self.rho[self.slices[k]] for k in names])
+        return PupilSets(rho, slices, {k: w for k, w in self.weights.items() if k in slices})
+
 
 def opd_method(model: IniModel) -> str:
     """"opl" (traced optical path) unless the path holds an ideal (paraxial) element,
@@ -199,6 +209,9 @@ def refine_contrast(model: IniModel, res: dict, levels: int, reference: IniModel
     step = frac / (nf - 1) if nf > 1 else 0.5 * frac
     D = np.array(model.depths)[subs.k]
     nyq = np.array([res["nyquist_cpd"]])
+    # The contrast needs the FFT grid and the centroid of the 2n Gauss-Legendre rule
+    # (its reference point): the other pupil samples are not traced.
+    sets = sets.subset(["gl2", "mtf"])
     for _ in range(levels):
         cand = np.clip(u[:, None, :] + step * _NEIGHBOURS[None], -frac, frac)  # (S, 8, 2)
         rsubs = Subsystems(subs.m, subs.n, subs.k, cand, subs.center,
