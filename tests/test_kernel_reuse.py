@@ -117,3 +117,27 @@ def test_jacobian_compiles_once_for_any_column_and_ray_count(scenes):
     j1 = jac(names[:5], 7)
     assert j1.d_pos.shape == (7, 2, 5)
     assert _compiled(lambda: jac(names[:9], 11)) == 0
+
+
+def test_vector_width_changes_no_result(scenes):
+    """Each lane's arithmetic is the same at any LLVM vector width (compact kernels,
+    ``LFSIM_VECTOR_WIDTH``): traces, first-order data and aimed bundles agree bit for bit."""
+    from lfsim import backend
+
+    if backend.vector_width() is None:
+        pytest.skip("CPU back end only")
+    design = lfsim.load(scenes / "freeform_prism.toml")
+    ini = lfsim.load(scenes / "ini_freeform.toml")
+    old = backend.vector_width()
+    results = []
+    try:
+        for w in (8, 1):
+            backend._llvm_target().set_width(w)
+            r = _trace_bundle(design)
+            fo = design.first_order()
+            model, b = _ini_workload(ini)
+            results.append((r.positions, r.directions, r.opl, r.status, fo.efl, model.JG, b.pos, b.dir, b.opl))
+    finally:
+        backend._llvm_target().set_width(old)
+    for a, b in zip(*results):
+        np.testing.assert_array_equal(a, b)
