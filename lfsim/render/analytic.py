@@ -65,9 +65,9 @@ class ReverseOptics:
 
     def to_global(self, o_local, d_local):
         """Viewing-window-frame Dr.Jit points/vectors to the global frame."""
-        T = self.T
-        R = T.Matrix3(*(float(v) for v in self.R_vw.ravel()))
-        return T.Array3(R @ T.Array3(o_local)) + T.Array3(*(float(v) for v in self.o_vw)), R @ T.Array3(d_local)
+        T, c = self.T, self.tracer.const  # the frame as opaque data (one kernel for any design)
+        R = T.Matrix3(*(c(v) for v in self.R_vw.ravel()))
+        return T.Array3(R @ T.Array3(o_local)) + T.Array3(*(c(v) for v in self.o_vw)), R @ T.Array3(d_local)
 
     def to_display(self, o_local, d_local):
         """Trace eye rays (viewing-window frame, heading −z) back to the display.

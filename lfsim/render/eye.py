@@ -199,6 +199,13 @@ def _sensor_class(mi):
             self.tan_half = tuple(math.tan(h) for h in self.half_fov)
             self.pupil_radius = 0.5 * p["pupil_diameter"]
             self.focus = p["focus_distance"]
+            # The same numbers as opaque scalars: a new focus distance, pupil, field
+            # of view or film size reuses the compiled render kernel.
+            op = lambda v: dr.opaque(mi.Float, float(v))  # noqa: E731
+            self._half_fov = tuple(op(h) for h in self.half_fov)
+            self._tan_half = tuple(op(t) for t in self.tan_half)
+            self._pupil_radius = op(self.pupil_radius)
+            self._focus = op(self.focus) if math.isfinite(self.focus) else None
             self.m_needs_sample_3 = True
             self.accommodation = None
             if self.model == "arizona":
@@ -223,7 +230,8 @@ def _sensor_class(mi):
             self.table, self.pupil = table, pupil
             n = len(table.alpha)
             self.n_table = n
-            self.inv_dalpha = (n - 1) / a_max
+            self.inv_dalpha = dr.opaque(mi.Float, (n - 1) / a_max)
+            self._last_row = dr.opaque(mi.Float, float(n - 2))
             # Packed per-field rows: retina r, reverse-frame z of the landing point,
             # exit-pupil disk centre (along the landing direction) and radius.
             z_lp = fo.z_lens_posterior
@@ -231,8 +239,8 @@ def _sensor_class(mi):
                              pupil.k * pupil.rho, pupil.k ** 2], axis=1)
             self.table_data = mi.Float(cols.ravel().astype(np.float32))
             dr.make_opaque(self.table_data)
-            self.z_xp_rev = float(z_lp - table.z_xp)
-            self.z_lp_eye = float(z_lp - eye_origin_depth(lam))
+            self.z_xp_rev = dr.opaque(mi.Float, float(z_lp - table.z_xp))
+            self.z_lp_eye = dr.opaque(mi.Float, float(z_lp - eye_origin_depth(lam)))
             self.tracer = SequentialTracer(arizona_reverse_system(self.accommodation, iris), "float32")
             self.P = self.tracer.params(lam)
 
@@ -241,14 +249,20 @@ def _sensor_class(mi):
             """Per-axis tangents (tx, ty) of the pixel direction at film sample ``s2``."""
             film = self.film()
             size, crop, off = film.size(), film.crop_size(), film.crop_offset()
-            u = (off[0] + s2.x * crop[0]) / size[0] + du
-            v = (off[1] + s2.y * crop[1]) / size[1] + dv
+            op = lambda v: dr.opaque(mi.Float, float(v))  # noqa: E731
+            # × the reciprocal: what a division by the literal size compiled to.
+            u = (op(off[0]) + s2.x * op(crop[0])) * op(1.0 / size[0])
+            v = (op(off[1]) + s2.y * op(crop[1])) * op(1.0 / size[1])
+            if du:
+                u = u + op(du)
+            if dv:
+                v = v + op(dv)
             if self.angular:
-                tx = dr.tan((2.0 * u - 1.0) * self.half_fov[0])
-                ty = dr.tan((1.0 - 2.0 * v) * self.half_fov[1])
+                tx = dr.tan((2.0 * u - 1.0) * self._half_fov[0])
+                ty = dr.tan((1.0 - 2.0 * v) * self._half_fov[1])
             else:
-                tx = (2.0 * u - 1.0) * self.tan_half[0]
-                ty = (1.0 - 2.0 * v) * self.tan_half[1]
+                tx = (2.0 * u - 1.0) * self._tan_half[0]
+                ty = (1.0 - 2.0 * v) * self._tan_half[1]
             return tx, ty
 
         def _pixel_step(self):
@@ -260,14 +274,14 @@ def _sensor_class(mi):
             if math.isinf(self.focus):
                 return dr.normalize(mi.Vector3f(tx, ty, -1.0))
             if self.params["focus_surface"] == "sphere":
-                P = dr.normalize(mi.Vector3f(tx, ty, -1.0)) * self.focus
+                P = dr.normalize(mi.Vector3f(tx, ty, -1.0)) * self._focus
             else:
-                P = mi.Vector3f(tx, ty, -1.0) * self.focus
+                P = mi.Vector3f(tx, ty, -1.0) * self._focus
             return dr.normalize(mi.Vector3f(P.x - q.x, P.y - q.y, P.z))
 
         def _sample_ideal(self, s2, s3, differentials):
             tx, ty = self._tangents(s2)
-            q = mi.warp.square_to_uniform_disk_concentric(s3) * self.pupil_radius
+            q = mi.warp.square_to_uniform_disk_concentric(s3) * self._pupil_radius
             o = mi.Point3f(q.x, q.y, 0.0)
             d = self._ideal_dir(q, tx, ty)
             ok = d.z < 0.0
@@ -282,7 +296,7 @@ def _sensor_class(mi):
         # ------------------------------------------------------------ arizona
         def _lookup(self, alpha):
             x = alpha * self.inv_dalpha
-            i = mi.UInt32(dr.clip(dr.floor(x), 0.0, float(self.n_table - 2)))
+            i = mi.UInt32(dr.clip(dr.floor(x), 0.0, self._last_row))
             f = dr.clip(x - mi.Float(i), 0.0, 1.0)
             ncol = 5
             out = []
