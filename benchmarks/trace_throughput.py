@@ -15,6 +15,10 @@ count N it measures rays per second of
   (Σ x² + y² of the image positions of the valid rays) with respect to the
   whole packed parameter array (``dr.enable_grad(P)``, ``dr.backward``),
   float64 and float32;
+* lfsim end to end through its numpy API, float64: ``design.trace`` with
+  (N, 3) numpy arrays in and numpy results out, every conversion included
+  (the column a user of the Python API gets; ``kernel_share`` is the
+  kernel call's time over it);
 * the NumPy float64 baseline (``benchmarks/numpy_tracer.py``, an independent
   vectorized implementation of the same model);
 * optiland (NumPy back end, float64) for the Cooke triplet only, built from
@@ -72,6 +76,7 @@ COLUMNS = [
     ("lfsim_f32_fwd", "lfsim f32 fwd"),
     ("lfsim_f64_fwdrev", "lfsim f64 fwd+rev"),
     ("lfsim_f32_fwdrev", "lfsim f32 fwd+rev"),
+    ("lfsim_f64_api", "lfsim f64 design.trace"),
     ("numpy_f64_fwd", "numpy f64 fwd"),
     ("optiland_f64_fwd", "optiland fwd"),
 ]
@@ -455,7 +460,24 @@ def bench_scene(path: Path, args, log) -> dict:
             del case
         dr.flush_malloc_cache()
 
-        agree: dict = {}
+        # lfsim end to end through its numpy API (design.trace: (N, 3) numpy in, numpy out).
+        o_n, d_n = np.ascontiguousarray(O[:n]), np.ascontiguousarray(D[:n])
+        gc.collect()
+        dr.flush_malloc_cache()
+        _reset_peak_rss()
+        first, best, times, r = _timed(lambda: design.trace(o_n, d_n, wavelength_nm=lam),
+                                       _repeats(args.repeats, n))
+        res["lfsim_f64_api"] = {"rays": n, "timed_rays": n, "first_call_s": first, "best_s": best,
+                                "repeats_s": times, "rays_per_s": n / best, "peak_rss_mb": _rss_mb(),
+                                "cpu_per_wall": _LAST_CPU[0],
+                                "kernel_share": res["lfsim_f64_fwd"]["best_s"] / best}
+        api_dp = float(np.abs(r.positions - lf64[0]).max())
+        log(f"    {'lfsim_f64_api':18s} first {first:7.3f} s  best {best:8.4f} s  "
+            f"{n / best / 1e6:8.3f} M rays/s  (kernel call / end to end {res['lfsim_f64_api']['kernel_share']:.2f};"
+            f" max|dp| vs the kernel call {api_dp:.3g} mm)")
+        del r, o_n, d_n
+
+        agree: dict = {"lfsim_api_vs_kernel_max_abs_dposition_mm": api_dp}
         # lfsim float32 vs float64.
         okb = (lf64[1] == 0) & (lf32[1] == 0)
         agree["lfsim_f32_vs_f64"] = {
@@ -554,6 +576,7 @@ def bench_scene(path: Path, args, log) -> dict:
             ratios["lfsim_f64_fwd_over_numpy"] = thr("lfsim_f64_fwd") / thr("numpy_f64_fwd")
         if thr("optiland_f64_fwd"):
             ratios["lfsim_f64_fwd_over_optiland"] = thr("lfsim_f64_fwd") / thr("optiland_f64_fwd")
+            ratios["lfsim_f64_api_over_optiland"] = thr("lfsim_f64_api") / thr("optiland_f64_fwd")
         for tag in ("f64", "f32"):
             t_fr, t_f = res[f"lfsim_{tag}_fwdrev"]["best_s"], res[f"lfsim_{tag}_fwd"]["best_s"]
             ratios[f"fwdrev_over_fwd_time_{tag}"] = t_fr / t_f
@@ -611,7 +634,7 @@ def _fmt(v, digits=3):
 def markdown(report: dict) -> str:
     lines = []
     head = ["scene", "N"] + [c[1] for c in COLUMNS] + [
-        "f64 fwd / numpy", "f64 fwd / optiland", "(fwd+rev)/fwd f64", "(fwd+rev)/fwd f32",
+        "f64 fwd / numpy", "f64 fwd / optiland", "design.trace / optiland", "(fwd+rev)/fwd f64", "(fwd+rev)/fwd f32",
         "rev/fwd f64", "rev/fwd f32"]
     lines.append("Throughput in M rays/s (best of %d; * = baseline timed on a %s-ray prefix);"
                  " ratios: speed-up (throughput ratio) and gradient cost (time ratio;"
@@ -634,6 +657,7 @@ def markdown(report: dict) -> str:
                     row.append(_fmt(r["rays_per_s"] / 1e6) + ("*" if r.get("scaled_from_subset") else ""))
             rt = sz["ratios"]
             row += [_fmt(rt.get("lfsim_f64_fwd_over_numpy")), _fmt(rt.get("lfsim_f64_fwd_over_optiland")),
+                    _fmt(rt.get("lfsim_f64_api_over_optiland")),
                     _fmt(rt.get("fwdrev_over_fwd_time_f64")), _fmt(rt.get("fwdrev_over_fwd_time_f32")),
                     _fmt(rt.get("rev_over_fwd_time_f64")), _fmt(rt.get("rev_over_fwd_time_f32"))]
             lines.append("| " + " | ".join(row) + " |")

@@ -10,7 +10,7 @@ else in lfsim imports ``drjit.llvm`` or ``drjit.cuda`` directly. Choices:
 * **threads**: the LLVM back end's worker count (``LFSIM_THREADS`` or
   :func:`configure`); default: all cores.
 * **vector width**: the SIMD width LLVM compiles kernels for
-  (``LFSIM_VECTOR_WIDTH`` = 1, 2, 4, 8 or 16; default the CPU's, 8 on AVX2).
+  (``LFSIM_VECTOR_WIDTH`` = 4, 8 or 16; default the CPU's, 8 on AVX2).
   Narrower kernels compile faster and run slower (AVX2, 1e6 rays: width 4
   compiles a large kernel ~2.6× faster and traces ~25 % slower than 8).
   Launches of a few dozen lanes use :func:`compact_kernels` whatever the
@@ -39,7 +39,7 @@ _state = {"device": None, "threads": None, "initialized": False}
 
 #: LLVM vector width of kernels launched inside :func:`compact_kernels` (first-order
 #: linearizations, frames, a few chief rays: launches of tens of lanes).
-COMPACT_VECTOR_WIDTH = 1
+COMPACT_VECTOR_WIDTH = 4
 
 
 class BackendError(RuntimeError):
@@ -123,9 +123,9 @@ def init() -> str:
                 w = int(width)
             except ValueError:
                 w = 0
-            if w not in (1, 2, 4, 8, 16):
+            if w not in (4, 8, 16):
                 _state["initialized"] = False
-                raise BackendError(f"LFSIM_VECTOR_WIDTH={width!r} is not allowed: use 1, 2, 4, 8 or 16")
+                raise BackendError(f"LFSIM_VECTOR_WIDTH={width!r} is not allowed: use 4, 8 or 16")
             t = _llvm_target()
             if t is not None:
                 t.set_width(w)
@@ -277,9 +277,11 @@ def compact_kernels(width: int | None = None):
 
     For launches of a few dozen lanes whose kernels are large (a trace of
     every surface, with forward-mode derivatives): their compile time is
-    what a user waits for, and at width 1 LLVM compiles them about 5× faster
+    what a user waits for, and at width 4 LLVM compiles them 3–5× faster
     than at the AVX2 width of 8 (measured on the 19-surface InI design:
-    14k-op kernels 25 s → 5 s). Each lane's arithmetic is the same IEEE
+    a 12.5k-op first-order kernel 25 s → 5.4 s). Only widths that Dr.Jit
+    itself selects on some CPU (4, 8, 16) are used: at widths 1 and 2 Dr.Jit
+    1.5 refuses packet gathers and some kernels crash. Each lane's arithmetic is the same IEEE
     operations at any width, so results are bit for bit the same. Every
     array that must be computed inside has to be evaluated before the block
     ends (kernels compile when evaluated). A no-op on CUDA.
@@ -289,7 +291,7 @@ def compact_kernels(width: int | None = None):
         yield
         return
     old = t.width()
-    new = int(width or os.environ.get("LFSIM_COMPACT_VECTOR_WIDTH") or COMPACT_VECTOR_WIDTH)
+    new = int(width or COMPACT_VECTOR_WIDTH)
     if new == old:
         yield
         return

@@ -131,7 +131,7 @@ def test_vector_width_changes_no_result(scenes):
     old = backend.vector_width()
     results = []
     try:
-        for w in (8, 1):
+        for w in (8, 4):
             backend._llvm_target().set_width(w)
             r = _trace_bundle(design)
             fo = design.first_order()
