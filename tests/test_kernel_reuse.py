@@ -105,12 +105,12 @@ def test_ini_model_and_subsystem_trace_compile_once_for_any_numbers(scenes, scen
 
 
 def test_jacobian_compiles_once_for_any_column_and_ray_count(scenes):
-    model = IniModel(lfsim.load(scenes / "ini_freeform.toml"))
+    model = IniModel(lfsim.load(scenes / "ini_coaxial.toml"))
     names = [n for n in model.tracer.names if n.endswith((".curvature", ".thickness", ".tilt_x"))]
     rng = np.random.default_rng(3)
 
     def jac(cols, nrays):
-        s = model.lenslet_center(8, 4) + rng.uniform(-0.1, 0.1, (nrays, 2))
+        s = model.lenslet_center(8, 4) + rng.uniform(-0.1, 0.1, (nrays, 2))  # the centre lenslet
         rho = rng.uniform(-0.5, 0.5, (nrays, 2))
         return subsystems.trace_rays_jacobian(model, s, 8, 4, rho, 0, [(n, None) for n in cols])
 
@@ -127,7 +127,7 @@ def test_vector_width_changes_no_result(scenes):
     if backend.vector_width() is None:
         pytest.skip("CPU back end only")
     design = lfsim.load(scenes / "freeform_prism.toml")
-    ini = lfsim.load(scenes / "ini_freeform.toml")
+    ini = lfsim.load(scenes / "ini_coaxial.toml")
     old = backend.vector_width()
     results = []
     try:

@@ -77,13 +77,13 @@ def test_renders_both_paths_with_nothing_else_in_the_scene(direct_view, tmp_path
     from lfsim.render.focal_stack import FocalStackSpec, focal_stack
 
     scenes = []
-    real_render = FS.render
+    real_load = FS.load_scene
 
     def spy(scene_dict):
         scenes.append(scene_dict)
-        return real_render(scene_dict)
+        return real_load(scene_dict)
 
-    monkeypatch.setattr(FS, "render", spy)
+    monkeypatch.setattr(FS, "load_scene", spy)
     content = content_from_dict(WALL, "wall")
     cdp_mm = 1000.0 / 3.0865
 
@@ -94,7 +94,9 @@ def test_renders_both_paths_with_nothing_else_in_the_scene(direct_view, tmp_path
         m.setattr(optics_scene, "optics_parts", no_meshes)
         spec = FocalStackSpec(focus_mm=[cdp_mm], cdp_mm=cdp_mm, spp=2, resolution=(24, 16), natural=False)
         doc, stack = focal_stack(direct_view, content, tmp_path / "analytic", spec, log=lambda *a: None)
-    assert set(scenes[0]) == {"type", "display", "sensor", "integrator"}  # the display and the eye only
+    # The display and its integrator only (the eye is each render's sensor).
+    assert set(scenes[0]) == {"type", "display", "integrator"}
+    assert sum("display" in sd for sd in scenes) == 1  # loaded once for the stack
     assert not list((tmp_path / "analytic").rglob("*.ply")) and not list((tmp_path / "analytic").rglob("*.xml"))
     img = stack["images"][("display", cdp_mm)]
     assert np.isfinite(img).all() and img.mean() > 0.05
@@ -102,6 +104,6 @@ def test_renders_both_paths_with_nothing_else_in_the_scene(direct_view, tmp_path
     spec = FocalStackSpec(focus_mm=[cdp_mm], cdp_mm=cdp_mm, spp=2, resolution=(24, 16), natural=False,
                           optics="mesh", tessellation=0.25)
     doc, stack = focal_stack(direct_view, content, tmp_path / "mesh", spec, log=lambda *a: None)
-    extra = set(scenes[0]) - {"type", "display", "sensor", "integrator"}
+    extra = set(scenes[0]) - {"type", "display", "integrator"}
     assert sorted(extra) == ["L1", "L1_L2_walls", "L1_mount", "L2"]
     assert np.isfinite(stack["images"][("display", cdp_mm)]).all()

@@ -21,6 +21,9 @@ TESS = {"segments": 8, "lenslet_segments": 4, "prism_segments": 16}
 # F1b.thickness (a relay z-shift, 366 flagged samples) is not here: 4.2 % at these sample
 # counts (docs/differentiable-rendering.md).
 INTERIOR = ["L1.index", "L1.curvature", "L1.conic", "object.distance"]
+#: The default run checks a surface shape and the display gap (the float32 case whose
+#: difference is noisiest); ``-m slow`` checks every parameter above.
+INTERIOR_DEFAULT = ["L1.curvature", "object.distance"]
 
 
 @pytest.fixture(scope="module")
@@ -111,11 +114,13 @@ def test_vertex_derivatives_match_numpy_central_differences(geometry, coaxial, n
         np.testing.assert_allclose(a, f, rtol=0, atol=1e-5 * scale + 1e-7, err_msg=name)
 
 
-def test_render_ad_matches_central_differences(mesh_setup):
+@pytest.mark.parametrize("names", [pytest.param(INTERIOR_DEFAULT, id="default"),
+                                   pytest.param(INTERIOR, id="all", marks=pytest.mark.slow)])
+def test_render_ad_matches_central_differences(mesh_setup, names):
     from lfsim.render import gradcheck as gc
 
     r, loss = mesh_setup
-    doc = gc.gradcheck(r, [t.reshape(r.H, r.W, -1) for t in loss.targets_np], INTERIOR,
+    doc = gc.gradcheck(r, [t.reshape(r.H, r.W, -1) for t in loss.targets_np], names,
                        rel_step=gc.MESH_REL_STEP, edge_rel_step=gc.MESH_EDGE_REL_STEP, fd_points=gc.MESH_FD_POINTS)
     print(gc.table(doc))
     for p in doc["params"]:
@@ -201,6 +206,7 @@ def test_fresnel_interface_darkens_the_image(mesh_setup, fresnel_setup):
     assert 0.2 < img.mean() / img1.mean() < 0.8
 
 
+@pytest.mark.slow
 def test_fresnel_index_gradient_forward_reverse_and_central_differences(mesh_setup, fresnel_setup):
     """With fresnel on, d(loss)/d(index) goes through the refraction and the 1 − F weight:
     forward = reverse mode, and both match the interior central difference (AD over the

@@ -302,6 +302,7 @@ class AnalyticRenderer:
         with dr.suspend_grad():
             ray, w = sensor.sample_ray(0.0, 0.0, mi.Point2f(px.astype(np.float32), py.astype(np.float32)),
                                        mi.Point2f(pupil[:, 0].astype(np.float32), pupil[:, 1].astype(np.float32)))
+            dr.eval(ray.o, ray.d, w)  # one kernel (each read alone would sample again)
             o = np.stack([np.asarray(ray.o[i], dtype=np.float64) for i in range(3)], axis=1)
             d = np.stack([np.asarray(ray.d[i], dtype=np.float64) for i in range(3)], axis=1)
             ok = np.asarray(w[0]) > 0

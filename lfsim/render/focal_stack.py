@@ -103,6 +103,11 @@ def similarity(img: np.ndarray, ref: np.ndarray) -> tuple[float, float]:
             float(peak_signal_noise_ratio(b, a, data_range=rng)))
 
 
+def load_scene(scene_dict: dict):
+    """``mi.load_dict`` of a scene dict (one place, so a focal stack's scenes can be inspected)."""
+    return mitsuba().load_dict(scene_dict)
+
+
 def render(scene_dict, sensor: dict | None = None) -> tuple[np.ndarray, float]:
     """Render a Mitsuba scene (a dict, or a loaded ``mi.Scene``); (image (H, W, 3) float32, seconds).
 
@@ -204,7 +209,7 @@ def focal_stack(design, content, out_dir, spec: FocalStackSpec | None = None, pr
             else:
                 sd = scene_dict(content)
                 sd["integrator"] = INTEGRATOR
-            loaded[kind] = mi.load_dict(sd)
+            loaded[kind] = load_scene(sd)
         return loaded[kind], sensor
 
     images = []

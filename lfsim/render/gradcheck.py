@@ -211,6 +211,7 @@ def sample_derivatives(loss: RenderLoss, values, i: int, speeds: list | None = N
         # forward_from(..., ClearNone), clears the graph's edges: edges left alive reached
         # the next derivative through Mitsuba's replayed virtual calls (isolate_grad error).
         gx, gy, *gv = dr.forward_to(b.x, b.y, *b.value)
+        dr.eval(gx, gy, b.valid, *gv)  # one kernel (each read alone would re-render)
         g = np.stack([np.asarray(v, dtype=np.float64) for v in gv], axis=-1)
         g = np.where(np.isfinite(g), g, 0.0)
         out.append(np.sum(np.repeat(w, r.spp, axis=0) * g, axis=-1))
