@@ -59,13 +59,19 @@ def accuracy(request):
 
     def check(quantity: str, value, bound: float | None, precision: str = "float64") -> float:
         v = float(value)
-        _ACCURACY.append((case, quantity, precision, v, bound))
+        # Carried on the test's report, so the table is complete with parallel workers (xdist).
+        request.node.user_properties.append(("lfsim_accuracy", (case, quantity, precision, v, bound)))
         assert math.isfinite(v), f"{case}: {quantity} ({precision}) = {v!r}"
         if bound is not None:  # None: a figure that is reported, not bounded
             assert v <= bound, f"{case}: {quantity} ({precision}) = {v:.3g} > {bound:.3g}"
         return v
 
     return check
+
+
+def pytest_runtest_logreport(report):
+    if report.when == "call":
+        _ACCURACY.extend(tuple(v) for k, v in report.user_properties if k == "lfsim_accuracy")
 
 
 def pytest_terminal_summary(terminalreporter):
