@@ -35,15 +35,26 @@ class TraceResult:
     path: np.ndarray | None = None
 
 
-def _as_rays(name, a) -> np.ndarray:
+def _as_rays(name, a, check: bool = True) -> np.ndarray:
     arr = np.asarray(a, dtype=np.float64)
     if arr.ndim == 1 and arr.shape[0] == 3:
         arr = arr[None, :]
     if arr.ndim != 2 or arr.shape[1] != 3:
         raise ValueError(f"{name} must be an (N, 3) array, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
+    if check and not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} contains non-finite values")
     return arr
+
+
+def _check_directions(d: np.ndarray) -> None:
+    """Finite and nonzero rows, by one fused pass (|d|²), exact checks only when it flags a row."""
+    n2 = np.einsum("ij,ij->i", d, d)
+    if np.all(np.isfinite(n2)) and np.all(n2 > 0.0):
+        return
+    if not np.all(np.isfinite(d)):
+        raise ValueError("directions contains non-finite values")
+    if not np.all(np.any(d != 0.0, axis=1)):
+        raise ValueError("directions contain a zero vector")
 
 
 class Design:
@@ -122,11 +133,10 @@ class Design:
             Also return the hit point at every surface (``path``).
         """
         o = _as_rays("origins", origins)
-        d = _as_rays("directions", directions)
+        d = _as_rays("directions", directions, check=False)
         if o.shape != d.shape:
             raise ValueError(f"origins {o.shape} and directions {d.shape} differ in shape")
-        if not np.all(np.any(d != 0.0, axis=1)):
-            raise ValueError("directions contain a zero vector")
+        _check_directions(d)
         lam = self.wavelength(wavelength_nm)
         if len(o) == 0:
             e3, e1 = np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
