@@ -171,6 +171,7 @@ def types(precision: str = "float64") -> SimpleNamespace:
             Float=getattr(mod, "Float64" if suffix == "f64" else "Float"),
             UInt32=mod.UInt32,
             Int32=mod.Int32,
+            Int64=mod.Int64,
             Bool=mod.Bool,
             Array3=getattr(mod, "Array3" + suffix),
             Matrix3=getattr(mod, "Matrix3" + suffix),

@@ -530,18 +530,18 @@ class SequentialTracer:
                 return buf
 
             pos, dirs = put(out.p), put(out.d)
-            cells = put((out.lenslet_m, out.lenslet_n), T.Int32, 2)
+            # Integer outputs widened to int64 in the kernel (no host-side copies).
+            cells = put((T.Int64(out.lenslet_m), T.Int64(out.lenslet_n)), T.Int64, 2)
+            status, failed = T.Int64(out.status), T.Int64(out.failed_at)
             path = [put(q) for q, _ in out.path] if record else []
-            dr.eval(pos, dirs, cells, out.status, out.opl, out.failed_at, *path)
+            dr.eval(pos, dirs, cells, status, failed, *path)
 
         def f64(buf, k=3):
             return np.asarray(buf).reshape(N, k).astype(np.float64, copy=False)
 
         res = {"positions": f64(pos), "directions": f64(dirs),
-               "status": np.asarray(out.status).astype(np.int64),
-               "opl": np.asarray(out.opl).astype(np.float64, copy=False),
-               "failed_at": np.asarray(out.failed_at).astype(np.int64),
-               "lenslet": np.asarray(cells).reshape(N, 2).astype(np.int64)}
+               "status": np.asarray(status), "opl": np.asarray(out.opl).astype(np.float64, copy=False),
+               "failed_at": np.asarray(failed), "lenslet": np.asarray(cells).reshape(N, 2)}
         if record:
             res["path"] = np.stack([f64(q) for q in path])
         return res
