@@ -310,9 +310,11 @@ class SequentialTracer:
         # Rays are carried in the local frame of the last surface met, so each
         # surface costs one frame change: x_i = A_i (x_prev − b_i).
         A, b = self._relative_frames(Rs, os_)
-        # Every frame in one small kernel: the per-ray gathers below read
-        # evaluated arrays (else each gather source compiles a kernel of its own).
-        dr.eval(Rs, os_, list(A.values()), list(b.values()))
+        # Every frame in one small kernel (one lane per parameter block, so a compact
+        # one): the per-ray gathers below read evaluated arrays (else each gather
+        # source compiles a kernel of its own).
+        with backend.compact_kernels():
+            dr.eval(Rs, os_, list(A.values()), list(b.values()))
         stop_at = len(self.system.surfaces) - 1 if last is None else int(last)
         last = None
         for i, s in enumerate(self.system.surfaces):
