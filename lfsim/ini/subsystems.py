@@ -17,7 +17,7 @@ from dataclasses import fields as dc_fields
 import drjit as dr
 import numpy as np
 
-from ..backend import from_numpy, to_numpy
+from ..backend import compact_kernels, from_numpy, to_numpy
 from ..optics.tracer import RayState
 from .model import IniModel
 
@@ -463,60 +463,64 @@ def _trace_rays_jacobian(model: IniModel, s, m, n, rho, k, columns, record=(), i
     record = list(record)
     R_s, o_s = tr.frames_numpy()[sp.stop]
     c_r = model.lenslet_center(m_r, n_r)
-    seed = dr.zeros(T.Float, 1)
-    dr.enable_grad(seed)
-    # One scalar seed, gathered to each width it is used at (no broadcast of a
-    # width-1 variable across arrays of different widths).
-    seed_p = dr.gather(T.Float, seed, dr.zeros(T.UInt32, C * nb * npar))
-    P = T.Float(np.tile(base, C)) + seed_p * T.Float(mask.ravel())
-    seed_r = dr.gather(T.Float, seed, dr.zeros(T.UInt32, C * N))
-    # Counts and design numbers enter as opaque data (one kernel for any ray
-    # count, column count or display gap).
-    opq = tr.const
-    j = dr.arange(T.UInt32, C * N)
-    ray = j % opq(N, "UInt32")
-    copy = j // opq(N, "UInt32")
-    g = lambda a, typ: dr.gather(typ, from_numpy(typ, a), ray)  # noqa: E731
-    block = copy * opq(nb, "UInt32") + g(k_r, T.UInt32)
-    tx = g(t[:, 0], T.Float) + seed_r * dr.select(copy == opq(K, "UInt32"), 1.0, 0.0)
-    ty = g(t[:, 1], T.Float) + seed_r * dr.select(copy == opq(K + 1, "UInt32"), 1.0, 0.0)
-    one = dr.full(T.Float, 1.0, C * N)
-    sx = g(s_r[:, 0], T.Float) + seed_r * dr.select(copy == opq(K + 2, "UInt32"), 1.0, 0.0)
-    sy = g(s_r[:, 1], T.Float) + seed_r * dr.select(copy == opq(K + 3, "UInt32"), 1.0, 0.0)
-    o = T.Array3(sx, sy, opq(-model.g) + 0.0 * one)
-    out = tr.trace(P, RayState(o, T.Array3(tx, ty, one)), block=block,
-                   lenslet=(g(m_r, T.Int32), g(n_r, T.Int32)), first=0, last=sp.viewing_window,
-                   record=True, clip=False)
-    Rs, os_ = tr.frames(P)
-    Rv = dr.gather(T.Matrix3, Rs[sp.viewing_window].T, block)  # global → local
-    ov = dr.gather(T.Array3, os_[sp.viewing_window], block)
-    pl = Rv @ (out.p - ov)
-    dl = Rv @ out.d
-    stop_p = out.path[sp.stop][0]
-    Rst = T.Matrix3(*(opq(float(v)) for v in R_s.T.ravel()))
-    sl = Rst @ (stop_p - T.Array3(*(opq(float(v)) for v in o_s)))
-    outs = [sl.x, sl.y, pl.x, pl.y, dl.x, dl.y, dl.z]
-    cx, cy = g(c_r[:, 0], T.Float), g(c_r[:, 1], T.Float)
-    for i in record:
-        p_i, d_i = out.path[i]
-        Ri = dr.gather(T.Matrix3, Rs[i].T, block)  # global → surface i's local frame
-        q = Ri @ (p_i - dr.gather(T.Array3, os_[i], block))
-        d_prev = out.path[i - 1][1] if i > 0 else dr.normalize(T.Array3(tx, ty, one))
-        # incidence from the directions before and after (the normal is along their difference)
-        dd = d_i - d_prev
-        nrm = dr.norm(dd)
-        cos_in = dr.select(nrm > 0, dr.abs(dr.dot(d_prev, dd)) / dr.maximum(nrm, 1e-300), 1.0)
-        if model.system.surfaces[i].array is not None:
-            outs += [q.x - cx, q.y - cy, cos_in]  # relative to the ray's lenslet axis
-        else:
-            outs += [q.x, q.y, cos_in]
-    grads = []
-    if derivatives:
-        dr.forward_from(seed, flags=dr.ADFlag.ClearNone)
-        grads = [dr.grad(v) for v in outs]
-    # One kernel for every value and derivative (evaluated one by one, each would
-    # re-run the whole trace).
-    dr.eval(*outs, out.status, *grads)
+    # The forward-mode kernel (26 k IR ops on the 19-surface freeform design) compiles at
+    # vector width 4: at 8 its registers spill (measured, cold `optimize --iterations 1` on
+    # ini_freeform: 23 s to compile and 1.9 s per launch at 4; the whole run 273 s -> 68 s).
+    with compact_kernels():
+        seed = dr.zeros(T.Float, 1)
+        dr.enable_grad(seed)
+        # One scalar seed, gathered to each width it is used at (no broadcast of a
+        # width-1 variable across arrays of different widths).
+        seed_p = dr.gather(T.Float, seed, dr.zeros(T.UInt32, C * nb * npar))
+        P = T.Float(np.tile(base, C)) + seed_p * T.Float(mask.ravel())
+        seed_r = dr.gather(T.Float, seed, dr.zeros(T.UInt32, C * N))
+        # Counts and design numbers enter as opaque data (one kernel for any ray
+        # count, column count or display gap).
+        opq = tr.const
+        j = dr.arange(T.UInt32, C * N)
+        ray = j % opq(N, "UInt32")
+        copy = j // opq(N, "UInt32")
+        g = lambda a, typ: dr.gather(typ, from_numpy(typ, a), ray)  # noqa: E731
+        block = copy * opq(nb, "UInt32") + g(k_r, T.UInt32)
+        tx = g(t[:, 0], T.Float) + seed_r * dr.select(copy == opq(K, "UInt32"), 1.0, 0.0)
+        ty = g(t[:, 1], T.Float) + seed_r * dr.select(copy == opq(K + 1, "UInt32"), 1.0, 0.0)
+        one = dr.full(T.Float, 1.0, C * N)
+        sx = g(s_r[:, 0], T.Float) + seed_r * dr.select(copy == opq(K + 2, "UInt32"), 1.0, 0.0)
+        sy = g(s_r[:, 1], T.Float) + seed_r * dr.select(copy == opq(K + 3, "UInt32"), 1.0, 0.0)
+        o = T.Array3(sx, sy, opq(-model.g) + 0.0 * one)
+        out = tr.trace(P, RayState(o, T.Array3(tx, ty, one)), block=block,
+                       lenslet=(g(m_r, T.Int32), g(n_r, T.Int32)), first=0, last=sp.viewing_window,
+                       record=True, clip=False)
+        Rs, os_ = tr.frames(P)
+        Rv = dr.gather(T.Matrix3, Rs[sp.viewing_window].T, block)  # global → local
+        ov = dr.gather(T.Array3, os_[sp.viewing_window], block)
+        pl = Rv @ (out.p - ov)
+        dl = Rv @ out.d
+        stop_p = out.path[sp.stop][0]
+        Rst = T.Matrix3(*(opq(float(v)) for v in R_s.T.ravel()))
+        sl = Rst @ (stop_p - T.Array3(*(opq(float(v)) for v in o_s)))
+        outs = [sl.x, sl.y, pl.x, pl.y, dl.x, dl.y, dl.z]
+        cx, cy = g(c_r[:, 0], T.Float), g(c_r[:, 1], T.Float)
+        for i in record:
+            p_i, d_i = out.path[i]
+            Ri = dr.gather(T.Matrix3, Rs[i].T, block)  # global → surface i's local frame
+            q = Ri @ (p_i - dr.gather(T.Array3, os_[i], block))
+            d_prev = out.path[i - 1][1] if i > 0 else dr.normalize(T.Array3(tx, ty, one))
+            # incidence from the directions before and after (the normal is along their difference)
+            dd = d_i - d_prev
+            nrm = dr.norm(dd)
+            cos_in = dr.select(nrm > 0, dr.abs(dr.dot(d_prev, dd)) / dr.maximum(nrm, 1e-300), 1.0)
+            if model.system.surfaces[i].array is not None:
+                outs += [q.x - cx, q.y - cy, cos_in]  # relative to the ray's lenslet axis
+            else:
+                outs += [q.x, q.y, cos_in]
+        grads = []
+        if derivatives:
+            dr.forward_from(seed, flags=dr.ADFlag.ClearNone)
+            grads = [dr.grad(v) for v in outs]
+        # One kernel for every value and derivative (evaluated one by one, each would
+        # re-run the whole trace).
+        dr.eval(*outs, out.status, *grads)
     val = np.stack([np.asarray(v, dtype=np.float64)[:N] for v in outs], axis=1)  # (N, O)
     status = np.asarray(out.status)[:N].astype(np.int64)
     nS = len(record)
