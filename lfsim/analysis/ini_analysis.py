@@ -252,7 +252,7 @@ def contrast_min(res: dict) -> np.ndarray:
 
 
 def summarize(res: dict) -> dict:
-    """The ``metrics.json`` document (DESIGN.md contract plus per-sub-system details).
+    """The ``metrics.json`` document (the contract in docs/contracts.md plus per-sub-system details).
 
     GD needs the centre field's chief ray and PA a field's four marginal rays;
     where those failed (vignetted, crosstalk) the value is left out of every

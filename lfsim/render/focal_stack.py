@@ -12,7 +12,7 @@ For a design, a content scene and a CDP depth:
    path-traced by Mitsuba) — and the natural view of the content through the same eye (the
    ground truth), with SSIM and PSNR between them (scikit-image);
 4. float32 EXRs with metadata, PNG previews, a contact sheet and
-   ``index.json`` (DESIGN.md contract), all written atomically.
+   ``index.json`` (the contract in docs/contracts.md), all written atomically.
 
 Images are in degrees of visual field over the display's FOV, so the display
 and natural views line up pixel for pixel.
