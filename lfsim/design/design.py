@@ -46,9 +46,11 @@ def _as_rays(name, a, check: bool = True) -> np.ndarray:
     return arr
 
 
-def _check_directions(d: np.ndarray) -> None:
-    """Finite and nonzero rows, by one fused pass (|d|²), exact checks only when it flags a row."""
-    n2 = np.einsum("ij,ij->i", d, d)
+def _check_directions(d: np.ndarray, n2: np.ndarray | None = None) -> None:
+    """Finite and nonzero rows, by one pass over |d|² (``n2``, computed by the trace
+    kernel when given), exact checks only when it flags a row."""
+    if n2 is None:
+        n2 = np.einsum("ij,ij->i", d, d)
     if np.all(np.isfinite(n2)) and np.all(n2 > 0.0):
         return
     if not np.all(np.isfinite(d)):
@@ -136,7 +138,6 @@ class Design:
         d = _as_rays("directions", directions, check=False)
         if o.shape != d.shape:
             raise ValueError(f"origins {o.shape} and directions {d.shape} differ in shape")
-        _check_directions(d)
         lam = self.wavelength(wavelength_nm)
         if len(o) == 0:
             e3, e1 = np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
@@ -150,6 +151,9 @@ class Design:
             if not self.system.arrays:
                 raise ValueError("lenslet given but the design has no lenslet array")
         res = self.tracer(precision).trace_numpy(o, d, lam, lenslet=lz, record=record)
+        # Checked after the launch, from the |d|² the kernel computed (the trace of a bad
+        # row is discarded with the whole result).
+        _check_directions(d, res.pop("direction_norm2"))
         return TraceResult(path=res.pop("path", None), **res)
 
     def first_order(self, wavelength_nm: float | None = None, method: str = "auto"):

@@ -494,13 +494,15 @@ class SequentialTracer:
                     record: bool = False, values=None) -> dict:
         """:meth:`trace` with numpy (N, 3) rays in and numpy arrays out, no gradients.
 
-        The kernel itself moves the data: it gathers the rays from the
-        (N, 3) buffers (read in place, without a host-side transpose or
-        copy) and scatters positions and directions into (N, 3) outputs, so
-        the host work around a launch is a few allocations. Returns a dict
-        with ``positions``, ``directions`` (N, 3) float64, ``status``,
-        ``opl``, ``failed_at``, ``lenslet`` (N, 2) and, with ``record``,
-        ``path`` (S, N, 3).
+        The kernels move the data: the trace gathers the rays from the (N, 3)
+        buffers (read in place, without a host-side transpose or copy), and a
+        second, small kernel of 3N lanes interleaves positions and directions
+        into (N, 3) outputs by gathers (contiguous stores; scatters into an
+        interleaved buffer launched one kernel per component and cost three
+        times as much). Returns a dict with ``positions``, ``directions`` (N,
+        3) float64, ``status``, ``opl``, ``failed_at``, ``lenslet`` (N, 2),
+        ``direction_norm2`` (N,) (|d|² of each input direction, for the
+        caller's check) and, with ``record``, ``path`` (S, N, 3).
         """
         T = self.T
         o = np.ascontiguousarray(origins, dtype=T.np_dtype).reshape(-1, 3)
@@ -508,7 +510,6 @@ class SequentialTracer:
         N = len(o)
         with dr.suspend_grad():
             i3 = dr.arange(T.UInt32, N) * 3
-            i2 = dr.arange(T.UInt32, N) * 2
 
             def get(buf):
                 return T.Array3(*(dr.gather(T.Float, buf, i3 + c) for c in range(3)))
@@ -516,36 +517,40 @@ class SequentialTracer:
             lens = None
             if lenslet is not None:
                 lz = T.Int32(np.ascontiguousarray(lenslet, dtype=np.int32).ravel())
+                i2 = dr.arange(T.UInt32, N) * 2
                 lens = (dr.gather(T.Int32, lz, i2), dr.gather(T.Int32, lz, i2 + 1))
             P = self.params(wavelength_nm, values=values)
-            out = self.trace(P, RayState(get(T.Float(o.ravel())), get(T.Float(d.ravel()))),
-                             lenslet=lens, record=record)
-            # The trace first, then the interleaving scatters in a second small kernel
-            # (fused with the trace, the scatters made its launch ~5x slower).
-            dr.eval(out.p, out.d, out.status, out.opl, out.failed_at, out.lenslet_m, out.lenslet_n,
-                    *(q for q, _ in (out.path or [])))
-
-            def put(v, typ=T.Float, k=3):
-                buf = dr.empty(typ, k * N)
-                for c in range(k):
-                    dr.scatter(buf, v[c], (i3 if k == 3 else i2) + c)
-                return buf
-
-            pos, dirs = put(out.p), put(out.d)
-            # Integer outputs widened to int64 in the kernel (no host-side copies).
-            cells = put((T.Int64(out.lenslet_m), T.Int64(out.lenslet_n)), T.Int64, 2)
+            d_in = get(T.Float(d.ravel()))
+            out = self.trace(P, RayState(get(T.Float(o.ravel())), d_in), lenslet=lens, record=record)
+            norm2 = dr.squared_norm(d_in)
+            # Integers widened to int64 inside the trace kernel: every output is then a
+            # view of Dr.Jit's pooled memory (a host-side astype of a fresh numpy
+            # buffer pays its page faults on every call).
             status, failed = T.Int64(out.status), T.Int64(out.failed_at)
-            path = [put(q) for q, _ in out.path] if record else []
-            dr.eval(pos, dirs, cells, status, failed, *path)
+            vecs = [out.p, out.d] + [q for q, _ in (out.path or [])]
+            dr.eval(*vecs, status, out.opl, failed, out.lenslet_m, out.lenslet_n, norm2)
+            # Interleave: lane j of a 3N-lane kernel reads component j % 3 of ray j // 3
+            # (and of a 2N-lane one, lenslet index j % 2 of ray j // 2).
+            j = dr.arange(T.UInt32, 3 * N)
+            row, comp = j // 3, j % 3
+            flat = [dr.select(comp == 0, dr.gather(T.Float, v.x, row),
+                              dr.select(comp == 1, dr.gather(T.Float, v.y, row), dr.gather(T.Float, v.z, row)))
+                    for v in vecs]
+            j2 = dr.arange(T.UInt32, 2 * N)
+            row2 = j2 // 2
+            cells = T.Int64(dr.select(j2 % 2 == 0, dr.gather(T.Int32, out.lenslet_m, row2),
+                                      dr.gather(T.Int32, out.lenslet_n, row2)))
+            dr.eval(*flat, cells)
 
-        def f64(buf, k=3):
-            return np.asarray(buf).reshape(N, k).astype(np.float64, copy=False)
+        def f64(buf):
+            return np.asarray(buf).reshape(N, 3).astype(np.float64, copy=False)
 
-        res = {"positions": f64(pos), "directions": f64(dirs),
-               "status": np.asarray(status), "opl": np.asarray(out.opl).astype(np.float64, copy=False),
-               "failed_at": np.asarray(failed), "lenslet": np.asarray(cells).reshape(N, 2)}
+        res = {"positions": f64(flat[0]), "directions": f64(flat[1]), "status": np.asarray(status),
+               "opl": np.asarray(out.opl).astype(np.float64, copy=False), "failed_at": np.asarray(failed),
+               "lenslet": np.asarray(cells).reshape(N, 2),
+               "direction_norm2": np.asarray(norm2).astype(np.float64, copy=False)}
         if record:
-            res["path"] = np.stack([f64(q) for q in path])
+            res["path"] = np.stack([f64(q) for q in flat[2:]])
         return res
 
     # ------------------------------------------------------------ jacobian
