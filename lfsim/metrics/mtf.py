@@ -19,15 +19,50 @@ def geometric_mtf(offsets: np.ndarray, weights: np.ndarray, ok: np.ndarray, freq
     ``offsets`` (..., R, 2), ``weights`` (R,) quadrature rule, ``ok`` (..., R),
     ``freqs`` (K,) cycles/rad. Returns (..., K, 2): axis −1 is the orientation
     (modulation along x, along y).
+
+    The sums run in one Dr.Jit kernel, one lane per (bundle, frequency,
+    orientation), with a symbolic loop over the R rays (the counts are data,
+    so the kernel compiles once): ``|Σ w cos φ − i Σ w sin φ|`` with
+    ``φ = 2π ν δ``. A full-resolution analysis evaluates ~10⁸ phases, which
+    numpy's complex ``exp`` took seconds for.
     """
-    w = np.where(ok, weights, 0.0)
+    import drjit as dr
+
+    from ..backend import from_numpy, types
+
+    offsets = np.asarray(offsets, dtype=np.float64)
+    lead, R = offsets.shape[:-2], offsets.shape[-2]
+    f = np.asarray(freqs, dtype=np.float64).ravel()
+    K = len(f)
+    w = np.where(ok, weights, 0.0).reshape(-1, R)
     wsum = np.sum(w, axis=-1)
-    out = np.empty(offsets.shape[:-2] + (len(freqs), 2))
-    for a in range(2):
-        ph = np.exp(-2j * np.pi * offsets[..., None, :, a] * np.asarray(freqs)[:, None])
-        s = np.einsum("...r,...kr->...k", w, ph)
-        out[..., a] = np.abs(s) / np.where(wsum > 0, wsum, 1.0)[..., None]
-    return out
+    L = w.shape[0]
+    if L == 0 or K == 0 or R == 0:
+        return np.zeros(lead + (K, 2))
+    T = types("float64")
+    with dr.suspend_grad():
+        off_d, w_d, f_d = from_numpy(T.Float, offsets.reshape(-1), w.reshape(-1), f)
+        nK, nR = dr.opaque(T.UInt32, K), dr.opaque(T.UInt32, R)
+        lane = dr.arange(T.UInt32, L * K * 2)
+        axis = lane % 2
+        k = (lane // 2) % nK
+        first = (lane // (2 * nK)) * nR  # the bundle's first ray
+        nu = dr.gather(T.Float, f_d, k) * (2.0 * np.pi)
+
+        def body(r, re, im):
+            j = first + r
+            sn, cs = dr.sincos(nu * dr.gather(T.Float, off_d, 2 * j + axis))
+            wj = dr.gather(T.Float, w_d, j)
+            return r + 1, dr.fma(wj, cs, re), dr.fma(wj, sn, im)
+
+        _, re, im = dr.while_loop(state=(dr.zeros(T.UInt32, L * K * 2), dr.zeros(T.Float, L * K * 2),
+                                         dr.zeros(T.Float, L * K * 2)),
+                                  cond=lambda r, re, im: r < nR, body=body, labels=("r", "re", "im"),
+                                  label="lfsim_geometric_mtf")
+        mod = dr.sqrt(dr.fma(re, re, im * im))
+        dr.eval(mod)
+    out = np.asarray(mod, dtype=np.float64).reshape(L, K, 2) / np.where(wsum > 0, wsum, 1.0)[:, None, None]
+    return out.reshape(lead + (K, 2))
 
 
 def reference_opd(pos: np.ndarray, dirs: np.ndarray, opl: np.ndarray, ok: np.ndarray,
