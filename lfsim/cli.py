@@ -158,11 +158,13 @@ def cmd_layout(args) -> int:
 
 def cmd_params(args) -> int:
     design = _load_design(args)
-    rows = [{"name": n, "value": float(v), "unit": u} for n, v, u in design.system.parameter_table()]
-    if args.json:  # JSON has no NaN/inf: a number that is not set (an object-space index) is null
+    lam = design.wavelength(None)
+    rows = [{"name": n, "value": v, "unit": u} for n, v, u in design.parameters(lam)]
+    if args.json:  # JSON has no NaN/inf: such a value (none is expected) is written as null
         rows = [{**r, "value": r["value"] if math.isfinite(r["value"]) else None} for r in rows]
-        print(_dump({"design": design.name, "file": args.design, "params": rows}))
+        print(_dump({"design": design.name, "file": args.design, "wavelength_nm": lam, "params": rows}))
         return 0
+    print(f"# {design.name}: design vector, indices at {lam:g} nm")
     for r in rows:
         print(f"{r['name']:28s} {r['value']: .12g} {r['unit']}")
     return 0
@@ -411,13 +413,11 @@ def cmd_gradcheck(args) -> int:
     names = [n.strip() for n in ",".join(args.param).split(",") if n.strip()]
     if not names:
         raise InputError("--param: give at least one parameter name")
-    from .render.diff_render import EXTRA_NAMES
-
-    known = set(design.parameter_names()) | set(EXTRA_NAMES)
+    known = set(design.parameter_names())
     unknown = [n for n in names if n not in known]
     if unknown:
         raise InputError(f"--param {','.join(unknown)}: not a parameter of {design_path} "
-                         "(lfsim params DESIGN lists them; object.distance is the display gap)")
+                         "(lfsim params DESIGN lists them)")
     res = _int_pair(args.resolution, "--resolution")
     for flag, v in (("--spp", args.spp), ("--rel-step", args.rel_step), ("--edge-rel-step", args.edge_rel_step),
                     ("--tessellation", args.tessellation),
@@ -745,7 +745,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "differences, with the boundary (visibility-edge) term per parameter")
     gcp.add_argument("design", nargs="?", help="InI design (default: the content file's [view] design)")
     gcp.add_argument("--param", action="append", required=True, metavar="NAME[,NAME...]",
-                     help="parameters to check (names from `lfsim params`, plus object.distance = display gap)")
+                     help="parameters to check (names from `lfsim params`; object.distance is the display gap)")
     gcp.add_argument("--content", default=DEFAULT_CONTENT, help=f"content scene (default {DEFAULT_CONTENT})")
     gcp.add_argument("--focus-mm", help="eye focus distances, mm, comma separated (default: the content's)")
     gcp.add_argument("--cdp-mm", help="CDP distance the tunable lens is set to, mm (default: the content's)")

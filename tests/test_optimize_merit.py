@@ -32,7 +32,7 @@ def freeform_merit(tmp_path_factory):
 
     scenes = Path(__file__).resolve().parents[1] / "scenes"
     d = _design(scenes, tmp_path_factory.mktemp("m"),
-                ["S3.x2y0", "S4.x2y1", "S1.curvature", "A1a.curvature", "tunable"],
+                ["S3.x2y0", "S4.x2y1", "S1.curvature", "A1a.curvature", "object.distance", "tunable"],
                 targets={"spot_axis_max_arcmin": 0.5, "gd_mean_deg": 0.3, "min_prism_thickness": 25.0,
                          "aperture_margin_mm": 1.0})
     return IniMerit(d, d.optimize)

@@ -82,3 +82,28 @@ def test_missing_key_created_under_an_existing_table_then_validated(scenes):
         load_with_overrides(scenes / "ini_freeform.toml", {"ini.analysis.fieldz": 9})
     with pytest.raises(DesignError, match="nosuch.analysis.fields = 9: a parameter name"):
         load_with_overrides(scenes / "ini_freeform.toml", {"nosuch.analysis.fields": 9})
+
+
+def test_display_gap_is_a_parameter_of_the_design_vector(scenes, capsys):
+    """``object.distance`` (the InI display gap g) is listed by ``lfsim params`` with
+    every index filled at the primary wavelength, takes ``--set``, is written back
+    into ``[object] distance`` and names a tolerance key; a lens with its object at
+    infinity has no such entry."""
+    from lfsim.design.tolerance_section import nominal_value
+    from lfsim.optics.materials import lookup
+
+    path = str(scenes / "ini_ideal.toml")
+    assert main(["params", path, "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    rows = {r["name"]: r["value"] for r in doc["params"]}
+    assert rows["object.distance"] == 4.5 and doc["params"][-1]["name"] == "object.distance"
+    assert all(isinstance(v, float) for v in rows.values())  # no null: indices are evaluated
+    assert rows["object.index"] == pytest.approx(
+        lookup("air").index(doc["wavelength_nm"]), rel=1e-15)
+    assert main(["params", path, "--set", "object.distance=4.75", "--json"]) == 0
+    rows = {r["name"]: r["value"] for r in json.loads(capsys.readouterr().out)["params"]}
+    assert rows["object.distance"] == 4.75
+    d = load_with_overrides(path, {"object.distance": 4.75})
+    assert d.system.object_distance == 4.75 and d.raw["object"]["distance"] == 4.75
+    assert nominal_value(d.raw, d.system, "object.distance") == 4.75
+    assert "object.distance" not in lfsim.load(scenes / "cooke_triplet.toml").parameter_names()

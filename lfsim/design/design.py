@@ -108,6 +108,13 @@ class Design:
     def parameter_names(self) -> list[str]:
         return self.system.parameter_names()
 
+    def parameters(self, wavelength_nm: float | None = None) -> list[tuple[str, float, str]]:
+        """The design vector as ``(name, value, unit)`` rows, indices at ``wavelength_nm``
+        (default: the primary wavelength); see :mod:`lfsim.optics.vector`."""
+        from ..optics.vector import DesignVector
+
+        return DesignVector(self.system).rows(self.wavelength(wavelength_nm))
+
     def tracer(self, precision: str = "float64", **kw):
         """The compiled :class:`~lfsim.optics.SequentialTracer` (cached per settings)."""
         from ..optics.tracer import SequentialTracer

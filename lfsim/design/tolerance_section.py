@@ -30,9 +30,9 @@ Schema (units: each key's own — mm, degrees, 1/mm, diopters)::
 
     [[tolerance.parameters]]   # one per toleranced error
     name = "mla_decenter_x"    # label (default: the key); unique
-    key = "mla.center_x"       # a --set key: parameter-table name, dotted path of a
-                               # number in the file (object.distance), or
-                               # ini.tunable.power_diopters[K]
+    key = "mla.center_x"       # a --set key: parameter-table name (object.distance is
+                               # the display gap), dotted path of a number in the
+                               # file, or ini.tunable.power_diopters[K]
     # keys = ["F1a.decenter_y", "F1b.decenter_y"]   # instead of key: the same offset to each
     # rigid = ["S1", "S2", "S3", "S4"]              # instead of key(s): surfaces placed with
     # motion = "tilt_x"        # global_position, moved as one body: tilt_x|tilt_y|tilt_z

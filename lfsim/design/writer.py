@@ -50,6 +50,7 @@ import tomli_w
 from ..fileio import write_text
 from .loader import ini_from_dict, system_from_dict
 from .optimize_section import fixed_parameter_reason
+from ..optics.vector import GAP
 
 _XY_RE = re.compile(r"^x(\d+)y(\d+)$")
 _A_RE = re.compile(r"^A(\d+)$")
@@ -179,7 +180,12 @@ def apply_values(raw: dict, values: dict[str, float],
         if value == current[name]:
             continue  # unchanged: keep the file's own spelling of the number
         owner, _, attr = name.rpartition(".")
-        if attr.startswith(("pitch_", "center_")) and owner in system.arrays:
+        if name == GAP:
+            obj = out.setdefault("object", {})
+            if not isinstance(obj, dict):
+                raise ValueError(f"parameter {name!r}: the design's [object] is not a table")
+            obj["distance"] = value
+        elif attr.startswith(("pitch_", "center_")) and owner in system.arrays:
             _set_component(out["arrays"][owner], attr.split("_")[0], 2, _AXIS[attr[-1]], value)
         else:
             _write_surface(surfaces[index_of[owner]], attr, value)

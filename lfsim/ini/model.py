@@ -38,6 +38,7 @@ import numpy as np
 from ..backend import compact_kernels, to_numpy
 from ..design.errors import DesignError
 from ..optics.tracer import RayState, Status
+from ..optics.vector import GAP
 
 
 class IniModelError(ValueError):
@@ -98,6 +99,7 @@ class IniModel:
         if not math.isfinite(self.g):
             raise DesignError(self.file, "object.distance", "inf", "the display (object) must be at a finite gap")
         self.values0 = np.asarray(self.system.parameter_values(self.lam), dtype=np.float64)
+        self._nominal = self.tracer.vector.numpy_getter(self.values0.copy())
         frames = self.tracer.frames_numpy()
         self.R_vw, self.o_vw = frames[spec.viewing_window]
         self.z_mla_back = float(frames[spec.mla_surfaces[-1]][1][2])
@@ -117,10 +119,9 @@ class IniModel:
     # ------------------------------------------------------------ geometry
     def lenslet_center(self, m, n) -> np.ndarray:
         """Eq. (1): lenslet axis (x, y) on the display side (0-based m, n; arrays allowed)."""
-        a = self.arr
         m, n = np.asarray(m, dtype=np.float64), np.asarray(n, dtype=np.float64)
-        return np.stack([a.center[0] + (m - 0.5 * (a.m - 1)) * a.pitch[0],
-                         a.center[1] + (n - 0.5 * (a.n - 1)) * a.pitch[1]], axis=-1)
+        get = self._nominal  # the design's lattice (linear views keep it)
+        return np.stack(np.broadcast_arrays(*self.tracer.vector.lenslet_centre(self.arr.name, m, n, get)), axis=-1)
 
     def values(self, k: int | None = None) -> np.ndarray:
         """Parameter vector of CDP state ``k`` (all states stacked when None)."""
@@ -140,11 +141,12 @@ class IniModel:
         with compact_kernels():
             return self._linearize_lanes(*args, **kwargs)
 
-    def _linearize_lanes(self, blocks: np.ndarray, base: np.ndarray, z_in: float, first: int, last: int,
+    def _linearize_lanes(self, blocks: np.ndarray, base: np.ndarray, z_in: float | None, first: int, last: int,
                          frame, on_surface: bool, lenslet=None):
         """Affine map of ray states about ``base`` through surfaces first..last.
 
-        Input: state (x, y, tan_x, tan_y) on the global plane ``z = z_in``.
+        Input: state (x, y, tan_x, tan_y) on the global plane ``z = z_in``
+        (None: the display plane z = −g of each block, g = ``object.distance``).
         Output: state on the plane of ``frame`` (R, o) (or, ``on_surface``, the
         hit point on the surface in that frame). Returns ``(F0, J)`` with shapes
         (B, 4) and (B, 4, 4), B = number of parameter blocks.
@@ -158,9 +160,13 @@ class IniModel:
         # Opaque (evaluated) scalars, not literals: a kernel compiled for one design is
         # reused for another whose axis point, display gap or frames differ.
         comp = [dr.opaque(T.Float, float(base[c])) + dr.select(k == c, seed, 0.0) for c in range(4)]
-        o = T.Array3(comp[0], comp[1], dr.opaque(T.Float, float(z_in)) + 0.0 * comp[0])
-        d = T.Array3(comp[2], comp[3], 1.0 + 0.0 * comp[0])
         P = tr.params(values=blocks.ravel())
+        if z_in is None:
+            z0 = -dr.gather(T.Float, P, (j // 4) * tr.const(tr.n_params, "UInt32") + tr.index[GAP])
+        else:
+            z0 = dr.opaque(T.Float, float(z_in)) + 0.0 * comp[0]
+        o = T.Array3(comp[0], comp[1], z0)
+        d = T.Array3(comp[2], comp[3], 1.0 + 0.0 * comp[0])
         lens = None
         if lenslet is not None:
             lens = (tr.const(lenslet[0], "Int32") + dr.zeros(T.Int32, 4 * nb),
@@ -200,10 +206,10 @@ class IniModel:
         frames = self.tracer.frames_numpy()
         R_s, o_s = frames[spec.stop]
         o_s = o_s + np.array([self.c_ref[0], self.c_ref[1], 0.0])
-        S0, JS = self._linearize(blocks, base, -self.g, 0, spec.stop, (R_s, o_s), True,
+        S0, JS = self._linearize(blocks, base, None, 0, spec.stop, (R_s, o_s), True,
                                  (self.m_ref, self.n_ref))
         back = (np.eye(3), np.array([0.0, 0.0, self.z_mla_back]))
-        L0, JL = self._linearize(blocks, base, -self.g, 0, spec.mla_surfaces[-1], back, False,
+        L0, JL = self._linearize(blocks, base, None, 0, spec.mla_surfaces[-1], back, False,
                                  (self.m_ref, self.n_ref))
         L0 = L0 - np.array([self.c_ref[0], self.c_ref[1], 0, 0])
         if not store:

@@ -19,6 +19,7 @@ import numpy as np
 
 from ..backend import compact_kernels, from_numpy, to_numpy
 from ..optics.tracer import RayState
+from ..optics.vector import GAP
 from .model import IniModel
 
 
@@ -487,7 +488,8 @@ def _trace_rays_jacobian(model: IniModel, s, m, n, rho, k, columns, record=(), i
         one = dr.full(T.Float, 1.0, C * N)
         sx = g(s_r[:, 0], T.Float) + seed_r * dr.select(copy == opq(K + 2, "UInt32"), 1.0, 0.0)
         sy = g(s_r[:, 1], T.Float) + seed_r * dr.select(copy == opq(K + 3, "UInt32"), 1.0, 0.0)
-        o = T.Array3(sx, sy, opq(-model.g) + 0.0 * one)
+        # Rays start on the display plane z = −g of their block: the gap is a column like any other.
+        o = T.Array3(sx, sy, -dr.gather(T.Float, P, block * opq(npar, "UInt32") + tr.index[GAP]))
         out = tr.trace(P, RayState(o, T.Array3(tx, ty, one)), block=block,
                        lenslet=(g(m_r, T.Int32), g(n_r, T.Int32)), first=0, last=sp.viewing_window,
                        record=True, clip=False)

@@ -2,7 +2,7 @@
 
 This is the seam between the design-file loader (``lfsim.design``) and the
 tracer: no files, no Dr.Jit. Every design number the tracer can differentiate
-is named by :meth:`System.parameter_table`.
+is named by :meth:`System.parameter_table` (owned by :mod:`lfsim.optics.vector`).
 
 Surface model (one for tracing, metrics and meshes), in the surface's local
 frame with the vertex at the origin and +z the local axis::
@@ -151,50 +151,17 @@ class System:
 
     # ------------------------------------------------------------- parameters
     def parameter_table(self) -> list[tuple[str, float, str]]:
-        """Every differentiable design number: ``(name, value, unit)``.
+        """Every differentiable design number: ``(name, value, unit)``
+        (:func:`lfsim.optics.vector.parameter_table`)."""
+        from .vector import parameter_table
 
-        Shape parameters of a ``same_as`` surface are those of its original
-        (they are one physical surface). Indices are listed by the medium that
-        follows a refracting surface and are filled per wavelength by
-        :meth:`parameter_values`.
-        """
-        rows: list[tuple[str, float, str]] = [("object.index", float("nan"), "")]
-        for s in self.surfaces:
-            if s.same_as is None:
-                rows += [(f"{s.name}.curvature", s.curvature, "1/mm"), (f"{s.name}.conic", s.conic, "")]
-                rows += [(f"{s.name}.A{o}", v, f"mm^{1 - o}") for o, v in sorted(s.asphere.items())]
-                rows += [(f"{s.name}.x{i}y{j}", v, "mm") for (i, j), v in sorted(s.xy.items())]
-                rows += [
-                    (f"{s.name}.decenter_x", s.decenter[0], "mm"),
-                    (f"{s.name}.decenter_y", s.decenter[1], "mm"),
-                    (f"{s.name}.tilt_x", s.tilt[0], "deg"),
-                    (f"{s.name}.tilt_y", s.tilt[1], "deg"),
-                    (f"{s.name}.tilt_z", s.tilt[2], "deg"),
-                ]
-                if s.global_position is not None:
-                    rows += [(f"{s.name}.position_{a}", v, "mm") for a, v in zip("xyz", s.global_position)]
-            if s.interaction == "paraxial":
-                rows.append((f"{s.name}.power", s.power, "1/mm"))
-            rows.append((f"{s.name}.thickness", s.thickness, "mm"))
-            if s.interaction in ("refract", "tir"):
-                rows.append((f"{s.name}.index", float("nan"), ""))
-        for a in self.arrays.values():
-            rows += [
-                (f"{a.name}.pitch_x", a.pitch[0], "mm"),
-                (f"{a.name}.pitch_y", a.pitch[1], "mm"),
-                (f"{a.name}.center_x", a.center[0], "mm"),
-                (f"{a.name}.center_y", a.center[1], "mm"),
-            ]
-        return rows
+        return parameter_table(self)
 
     def parameter_names(self) -> list[str]:
         return [r[0] for r in self.parameter_table()]
 
     def parameter_values(self, wavelength_nm: float) -> list[float]:
         """Values of :meth:`parameter_table` with indices evaluated at ``wavelength_nm``."""
-        index_of = {f"{s.name}.index": s.material for s in self.surfaces if s.interaction in ("refract", "tir")}
-        index_of["object.index"] = self.object_material
-        return [
-            float(index_of[n].index(wavelength_nm)) if n in index_of else v
-            for n, v, _ in self.parameter_table()
-        ]
+        from .vector import DesignVector
+
+        return DesignVector(self).values(wavelength_nm).tolist()

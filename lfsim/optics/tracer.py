@@ -27,7 +27,8 @@ import numpy as np
 
 from .. import backend
 from .prescription import Surface, System
-from .surfaces import Shape, intersect, normal, sag
+from .surfaces import intersect, normal, sag
+from .vector import DesignVector
 
 
 class Status(IntEnum):
@@ -120,9 +121,11 @@ class SequentialTracer:
         self.system = system
         self.T = backend.types(precision)
         self.precision = precision
-        self.names = system.parameter_names()
-        self.index = {n: i for i, n in enumerate(self.names)}
-        self.n_params = len(self.names)
+        #: The design vector (names, blocks, shapes, lenslet axes, media).
+        self.vector = vec = DesignVector(system)
+        self.names = vec.names
+        self.index = vec.index
+        self.n_params = vec.size
         self.newton_tol = newton_tol if newton_tol is not None else (
             1e-12 if precision == "float64" else 1e-5)
         self.newton_max_iter = int(newton_max_iter)
@@ -134,7 +137,6 @@ class SequentialTracer:
         self.reduce_mode = dr.ReduceMode.Auto
         self.groups = system.array_groups()
         self._group_first = {idx[0]: g for g, idx in self.groups.items()}
-        self._index_param = self._media_params()
         self._opaque: dict = {}
 
     def const(self, value, kind: str = "Float"):
@@ -166,40 +168,24 @@ class SequentialTracer:
         """
         if values is None:
             lam = wavelength_nm if wavelength_nm is not None else self.system.primary_wavelength_nm
-            values = np.asarray(self.system.parameter_values(lam), dtype=np.float64)
+            values = self.vector.values(lam)
         values = np.asarray(values, dtype=np.float64).ravel()
         if values.size % self.n_params:
             raise ValueError(
                 f"parameter array of length {values.size} is not a multiple of {self.n_params}")
         return backend.from_numpy(self.T.Float, values.astype(self.T.np_dtype))
 
-    def _media_params(self) -> list[str]:
-        """Name of the index parameter of the medium *before* each surface."""
-        cur = "object.index"
-        out = []
-        for s in self.system.surfaces:
-            out.append(cur)
-            if s.interaction == "refract":
-                cur = f"{s.name}.index"
-        out.append(cur)
-        return out
-
-    def _shape_owner(self, s: Surface) -> Surface:
-        return self.system.surfaces[s.same_as] if s.same_as is not None else s
-
-    def shape(self, P, i: int, block) -> Shape:
+    def shape(self, P, i: int, block):
         """Surface ``i``'s shape (its ``same_as`` owner's coefficients), gathered per
         lane from parameter block ``block`` (UInt32 array) of the packed ``P``."""
         T = self.T
         base = block * self.n_params
-        owner = self._shape_owner(self.system.surfaces[i])
 
-        def pr(key):
-            return dr.gather(T.Float, P, base + self.index[f"{owner.name}.{key}"], mode=self.reduce_mode)
+        def pr(name):
+            return dr.gather(T.Float, P, base + self.index[name], mode=self.reduce_mode)
 
-        return Shape(c=pr("curvature"), k=pr("conic"), asphere={o: pr(f"A{o}") for o in owner.asphere},
-                     xy={ij: pr(f"x{ij[0]}y{ij[1]}") for ij in owner.xy},
-                     inv_norm=self.const(1.0 / owner.norm_radius) if owner.xy else 1.0 / owner.norm_radius)
+        owner = self.system.surfaces[self.vector.owner(i)]
+        return self.vector.shape(i, pr, const=self.const if owner.xy else float)
 
     # --------------------------------------------------------------- frames
     def frames(self, P):
@@ -286,6 +272,7 @@ class SequentialTracer:
             block = dr.opaque(T.UInt32, 0, n)
         base = block * self.n_params
         Rs, os_ = self.frames(P)
+        vec = self.vector
 
         def pr(name):
             return dr.gather(T.Float, P, base + self.index[name], mode=self.reduce_mode)
@@ -342,9 +329,10 @@ class SequentialTracer:
                 arr = self.system.arrays[s.array]
                 px, py = pr(f"{arr.name}.pitch_x"), pr(f"{arr.name}.pitch_y")
                 cx, cy = pr(f"{arr.name}.center_x"), pr(f"{arr.name}.center_y")
+                lattice = {f"{arr.name}.pitch_x": px, f"{arr.name}.pitch_y": py,
+                           f"{arr.name}.center_x": cx, f"{arr.name}.center_y": cy}
                 # Lenslet counts as data: halves, centre offsets, last indices.
                 half_m, half_n = self.const(0.5 * arr.m), self.const(0.5 * arr.n)
-                mid_m, mid_n = self.const(0.5 * (arr.m - 1)), self.const(0.5 * (arr.n - 1))
                 cnt_m, cnt_n = self.const(arr.m, "Int32"), self.const(arr.n, "Int32")
                 top_m, top_n = self.const(arr.m - 1, "Int32"), self.const(arr.n - 1, "Int32")
                 if s.array not in cell or cells == "per_surface":
@@ -371,12 +359,12 @@ class SequentialTracer:
                         lens_m = dr.select(outside, -1, m_idx)
                         lens_n = dr.select(outside, -1, n_idx)
                 m_idx, n_idx = cell[s.array]
-                xm = cx + (T.Float(m_idx) - mid_m) * px
-                yn = cy + (T.Float(n_idx) - mid_n) * py
+                xm, yn = vec.lenslet_centre(s.array, T.Float(m_idx), T.Float(n_idx), lattice.__getitem__,
+                                            const=self.const)
                 offset = T.Array3(xm, yn, 0.0)
                 pl = pl - offset
 
-            owner = self._shape_owner(s)
+            owner = self.system.surfaces[vec.owner(i)]
             shape = self.shape(P, i, block)
             t, ok, conv = intersect(pl, dl, shape, T, owner.needs_newton,
                                     self.newton_tol, self.newton_max_iter)
@@ -388,8 +376,8 @@ class SequentialTracer:
                 n2 = T.Int32(dr.floor(dr.detach((hit0.y - cy) / py) + half_n))
                 moved = ok & ((m2 != m_idx) | (n2 != n_idx)) & (m2 >= 0) & (m2 < cnt_m) & (n2 >= 0) & (n2 < cnt_n)
                 m_idx, n_idx = dr.select(moved, m2, m_idx), dr.select(moved, n2, n_idx)
-                offset2 = T.Array3(cx + (T.Float(m_idx) - mid_m) * px,
-                                   cy + (T.Float(n_idx) - mid_n) * py, 0.0)
+                offset2 = T.Array3(*vec.lenslet_centre(s.array, T.Float(m_idx), T.Float(n_idx),
+                                                       lattice.__getitem__, const=self.const), 0.0)
                 pl = pl + offset - offset2
                 offset = offset2
                 t, ok, conv = intersect(pl, dl, shape, T, owner.needs_newton,
@@ -420,7 +408,7 @@ class SequentialTracer:
                 fail(crossed, Status.WRONG_LENSLET, i)
 
             # Interaction.
-            n1 = pr(self._index_param[i])
+            n1 = pr(self.vector.media[i])
             d_new = dl
             if s.interaction in ("refract", "reflect", "tir"):
                 if owner.needs_newton:
@@ -620,12 +608,9 @@ class SequentialTracer:
 
     def sag_numpy(self, i: int, x, y) -> np.ndarray:
         """Sag of surface ``i`` (the same model the tracer intersects) at local (x, y)."""
-        s = self.system.surfaces[i]
-        owner = self._shape_owner(s)
         T = self.T
-        shape = Shape(T.Float(owner.curvature), T.Float(owner.conic),
-                      {o: T.Float(v) for o, v in owner.asphere.items()},
-                      {ij: T.Float(v) for ij, v in owner.xy.items()}, 1.0 / owner.norm_radius)
+        get = self.vector.numpy_getter(self.vector.values())
+        shape = self.vector.shape(i, lambda name: T.Float(get(name)))
         x = np.asarray(x, dtype=T.np_dtype)
         y = np.asarray(y, dtype=T.np_dtype)
         with dr.suspend_grad():

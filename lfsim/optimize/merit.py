@@ -476,7 +476,7 @@ class IniMerit:
             vals = model.values(0)
             names = model.tracer.names
             for j_, i in enumerate(tirs):
-                n1 = vals[names.index(model.tracer._index_param[i])]
+                n1 = vals[names.index(model.tracer.vector.media[i])]
                 n2 = vals[names.index(f"{model.system.surfaces[i].name}.index")]
                 theta_c = math.degrees(math.asin(min(1.0, n2 / n1)))
                 cosv = np.clip(J.cos_in[:, nmla + j_], -1.0, 1.0).reshape(S, F, R)

@@ -7,9 +7,9 @@ number is an attached Dr.Jit variable:
 
 * **Design vector** ``P``: the forward parameter table of the design
   (:meth:`System.parameter_table`, the names ``lfsim params`` lists, with
-  the tunable lens's power of the rendered CDP state in ``<TL>.power``)
-  followed by ``object.distance``, the display-to-MLA gap g (the display
-  plane is ``z = −g``).
+  the tunable lens's power of the rendered CDP state in ``<TL>.power``);
+  its ``object.distance`` is the display-to-MLA gap g (the display plane is
+  ``z = −g``).
 * **Reversed system** (:func:`lfsim.optics.reverse.reversed_system`): its
   parameter array is a differentiable function of ``P`` (:class:`ReverseMap`):
   shapes, indices, powers and lenslet pitches are copied, and each surface's
@@ -48,9 +48,6 @@ from .. import backend
 from ..optics.reverse import reversed_system
 from ..optics.tracer import RayState, SequentialTracer
 
-#: Names appended to the forward parameter table in the design vector.
-EXTRA_NAMES = ("object.distance",)
-
 
 def _euler_deg(R):
     """Dr.Jit version of :func:`lfsim.optics.reverse.euler_xyz`: (a, b, c) in degrees
@@ -77,9 +74,9 @@ class ReverseMap:
         self.model = model
         self.fwd = SequentialTracer(system, precision)
         self.T = self.fwd.T
-        self.names = list(self.fwd.names) + list(EXTRA_NAMES)
-        self.index = {n: i for i, n in enumerate(self.names)}
-        self.values0 = np.concatenate([model.values(0), [model.g]])
+        self.names = self.fwd.names
+        self.index = self.fwd.index
+        self.values0 = model.values(0)
         self.vw = spec.viewing_window
         last = spec.viewing_window - 1
         frames = self.fwd.frames_numpy(self.fwd.params(values=model.values(0)))
@@ -93,7 +90,7 @@ class ReverseMap:
         self.wavelength_nm = model.lam
         # Which forward surface each reversed surface is (the order of reversed_system).
         order = [i for i in range(last, -1, -1) if system.surfaces[i].interaction != "break"]
-        media = self.fwd._index_param
+        media = self.fwd.vector.media
         n_p = len(self.names)
         zero = n_p  # slot of a constant 0 in the source array
         self._computed = []  # (reversed name, forward surface index or None for 'end')

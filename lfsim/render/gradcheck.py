@@ -523,7 +523,7 @@ def run(design, content, names: list[str], view, rel_step: float | None = None,
     unknown = [n for n in names if n not in r.index]
     if unknown:
         raise ValueError(f"--param {','.join(unknown)}: not a parameter of {design.path or design.name} "
-                         "(lfsim params DESIGN lists them; object.distance is the display gap)")
+                         "(lfsim params DESIGN lists them)")
     targets = natural_targets(r, content, spp=target_spp or 4 * view.spp, seed=view.seed + 1)
     setup = time.perf_counter() - t0
     doc = gradcheck(r, targets, names, rel_step=rel_step, edge_rel_step=edge_rel_step, sweep=sweep, log=log,

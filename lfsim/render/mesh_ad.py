@@ -27,9 +27,9 @@ point the Dr.Jit vertices equal the numpy tessellation to rounding, and their
 derivatives are exact derivatives of the tessellated surfaces
 (``tests/test_mesh_ad.py`` checks both).
 
-The design vector has the layout of :class:`lfsim.render.diff_render.ReverseMap`:
-the forward parameter table followed by ``object.distance`` (the display gap
-g; the display is the plane z = −g).
+The design vector is the design's parameter table
+(:mod:`lfsim.optics.vector`), whose ``object.distance`` is the display gap g
+(the display is the plane z = −g).
 """
 
 from __future__ import annotations
@@ -77,8 +77,9 @@ class MeshGeometry:
     ----------
     design : lfsim.Design
     values : array_like
-        Forward parameter vector (``design.parameter_names()`` order) of the
-        nominal state: it fixes the topology, the sides and which seams weld.
+        Parameter vector (``design.parameter_names()`` order, the display gap
+        ``object.distance`` included) of the nominal state: it fixes the
+        topology, the sides and which seams weld.
     wavelength_nm : float, optional
     tessellation : dict, optional
         ``segments``, ``lenslet_segments``, ``prism_segments``
@@ -87,20 +88,18 @@ class MeshGeometry:
         Absorbing mounts around lens faces and arrays (as ``optics_shapes``).
     fresnel : bool
         Interfaces refract with weight 1 − F instead of 1.
-    extra_names : sequence of str
-        Names that follow the forward table in the design vector.
     tracer : SequentialTracer, optional
         The design's float64 forward tracer, when the caller has one already.
     """
 
     def __init__(self, design, values, wavelength_nm=None, tessellation=None, mounts: bool = True,
-                 fresnel: bool = False, extra_names=("object.distance",), tracer=None):
+                 fresnel: bool = False, tracer=None):
         system = design.system
         self.system = system
         self.tracer = tracer if tracer is not None else SequentialTracer(system, "float64")
         self.T = T = self.tracer.T
-        self.names = list(self.tracer.names) + list(extra_names)
-        self.index = {n: i for i, n in enumerate(self.names)}
+        self.names = self.tracer.names
+        self.index = self.tracer.index
         values = np.asarray(values, dtype=np.float64).ravel()
         self.values_fwd = values
         tess = dict(tessellation or {})
@@ -189,7 +188,7 @@ class MeshGeometry:
         """{bsdf parameter: [design-vector indices summed]} of one part."""
         b, m = part.bsdf, part.mesh
         t = b.get("type")
-        media = self.tracer._index_param
+        media = self.tracer.vector.media
         if t == _bsdfs.INTERFACE:
             i = m.surface
             s = self.system.surfaces[i]
@@ -215,21 +214,18 @@ class MeshGeometry:
         return {}
 
     # -------------------------------------------------------- evaluation
-    def params_for(self, values_fwd, extra=None):
-        """A design vector (``T.Float``) from a forward vector (+ extra values)."""
-        extra = np.zeros(len(self.names) - self.tracer.n_params) if extra is None else np.asarray(extra)
-        v = np.concatenate([np.asarray(values_fwd, dtype=np.float64), extra])
+    def params_for(self, values):
+        """The design vector (``T.Float``) of numpy ``values``."""
+        v = np.asarray(values, dtype=np.float64).ravel()
+        if v.size != len(self.names):
+            raise ValueError(f"expected {len(self.names)} design values, got {v.size}")
         return backend.from_numpy(self.T.Float, v)
 
     def _g(self, P, name):
         return dr.gather(self.T.Float, P, self.T.UInt32(self.index[name]))
 
     def _shape(self, P, i: int) -> Shape:
-        s = self.system.surfaces[i]
-        o = self.system.surfaces[s.same_as] if s.same_as is not None else s
-        g = lambda suffix: self._g(P, f"{o.name}.{suffix}")  # noqa: E731
-        return Shape(c=g("curvature"), k=g("conic"), asphere={k: g(f"A{k}") for k in o.asphere},
-                     xy={ij: g(f"x{ij[0]}y{ij[1]}") for ij in o.xy}, inv_norm=1.0 / o.norm_radius)
+        return self.tracer.vector.shape(i, lambda name: self._g(P, name))
 
     def _lattice_xy(self, rule: _FaceRule, P):
         arr, ax, bx, ay, by = rule.lattice

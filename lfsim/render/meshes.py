@@ -175,15 +175,15 @@ class SurfaceModel:
         self.values = values
         with dr.suspend_grad():
             self.frames = self.tracer.frames_numpy(self.tracer.params(values=values))
-        self._media = self.tracer._index_param  # index parameter of the medium before each surface
+        self.vector = self.tracer.vector
+        self._media = self.vector.media  # index parameter of the medium before each surface
 
     # -- parameters
     def value(self, name: str) -> float:
         return float(self.values[self.tracer.index[name]])
 
     def owner(self, i: int) -> int:
-        s = self.system.surfaces[i]
-        return s.same_as if s.same_as is not None else i
+        return self.vector.owner(i)
 
     def index_before(self, i: int) -> float:
         """Index of the medium a ray is in when it meets surface ``i``."""
@@ -202,27 +202,15 @@ class SurfaceModel:
     def lenslet_centres(self, array: str) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
         """Lenslet axis positions x_m (M,), y_n (N,) and the pitch, in each member's local frame."""
         a = self.system.arrays[array]
-        px, py = self.value(f"{array}.pitch_x"), self.value(f"{array}.pitch_y")
-        cx, cy = self.value(f"{array}.center_x"), self.value(f"{array}.center_y")
-        xm = cx + (np.arange(a.m) - 0.5 * (a.m - 1)) * px
-        yn = cy + (np.arange(a.n) - 0.5 * (a.n - 1)) * py
-        return xm, yn, (px, py)
+        xm, yn = self.vector.lenslet_centre(array, np.arange(a.m), np.arange(a.n), self.value)
+        return xm, yn, (self.value(f"{array}.pitch_x"), self.value(f"{array}.pitch_y"))
 
     def shape(self, i: int) -> Shape:
         """The :class:`~lfsim.optics.surfaces.Shape` of surface ``i`` from ``values``."""
-        T = self.T
-        o = self.system.surfaces[self.owner(i)]
-
         def op(v):
-            return dr.opaque(T.Float, float(v))
+            return dr.opaque(self.T.Float, float(v))
 
-        return Shape(
-            c=op(self.value(f"{o.name}.curvature")),
-            k=op(self.value(f"{o.name}.conic")),
-            asphere={k: op(self.value(f"{o.name}.A{k}")) for k in o.asphere},
-            xy={ij: op(self.value(f"{o.name}.x{ij[0]}y{ij[1]}")) for ij in o.xy},
-            inv_norm=op(1.0 / o.norm_radius),
-        )
+        return self.vector.shape(i, lambda name: op(self.value(name)), const=op)
 
     def sag(self, i: int, x, y) -> tuple[np.ndarray, np.ndarray]:
         """Sag z and unit normal (+z local) of surface ``i`` at local (x, y).
