@@ -86,6 +86,84 @@ def test_global_position_and_same_as(make_design):
     assert "again.curvature" not in d.parameter_names()
 
 
+def _rx(a):
+    c, s = math.cos(math.radians(a)), math.sin(math.radians(a))
+    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+
+
+def _ry(a):
+    c, s = math.cos(math.radians(a)), math.sin(math.radians(a))
+    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+
+
+def _rz(a):
+    c, s = math.cos(math.radians(a)), math.sin(math.radians(a))
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+
+
+def test_compound_tilt_is_intrinsic_x_then_y_then_z(make_design):
+    """docs/architecture.md, frame convention 2: R = Rx·Ry·Rz, i.e. about x, then the
+    rotated y′, then the twice-rotated z″; about fixed axes the order would be z, y, x."""
+    d = make_design("""
+        [[surfaces]]
+        name = "t"
+        dummy = true
+        tilt = [20.0, 35.0, 50.0]
+        return_axis = false
+        [[surfaces]]
+        dummy = true
+    """)
+    R = d.tracer().frames_numpy()[0][0]
+    np.testing.assert_allclose(R, _rx(20) @ _ry(35) @ _rz(50), atol=1e-15)
+    # Intrinsic construction: rotate the axes step by step about their current selves.
+    axes = np.eye(3)
+    for axis, ang in ((0, 20.0), (1, 35.0), (2, 50.0)):
+        k = axes[:, axis]
+        K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+        a = math.radians(ang)
+        axes = (np.eye(3) + math.sin(a) * K + (1 - math.cos(a)) * K @ K) @ axes
+    np.testing.assert_allclose(R, axes, atol=1e-15)
+    assert not np.allclose(R, _rz(50) @ _ry(35) @ _rx(20), atol=1e-3)  # not the extrinsic x, y, z order
+
+
+def test_decenter_of_a_global_position_surface_moves_along_its_tilted_axes(make_design):
+    """Frame convention 3: origin = position + R·(dx, dy, 0)."""
+    d = make_design("""
+        [[surfaces]]
+        name = "g"
+        dummy = true
+        global_position = [1.0, 2.0, 30.0]
+        tilt = [0.0, 90.0, 0.0]
+        decenter = [3.0, 0.0]
+        [[surfaces]]
+        dummy = true
+    """)
+    R, o = d.tracer().frames_numpy()[0]
+    np.testing.assert_allclose(o, [1.0, 2.0, 30.0 - 3.0], atol=1e-14)  # tilted x = global −z
+    np.testing.assert_allclose(o, np.array([1.0, 2.0, 30.0]) + R @ [3.0, 0.0, 0.0], atol=1e-15)
+
+
+def test_return_axis_defaults_true_on_surfaces_and_false_on_coordinate_breaks(make_design):
+    """Frame convention 4."""
+    text = """
+        [[surfaces]]
+        {kind}
+        tilt = [10.0, 0.0, 0.0]
+        thickness = 5.0
+        [[surfaces]]
+        dummy = true
+    """
+    surf = make_design(text.format(kind="dummy = true"), "s.toml")
+    brk = make_design(text.format(kind='type = "coordinate_break"'), "b.toml")
+    assert surf.system.surfaces[0].return_axis and not brk.system.surfaces[0].return_axis
+    R1, o1 = surf.tracer().frames_numpy()[1]
+    np.testing.assert_allclose(R1, np.eye(3), atol=1e-15)  # back on the original axis
+    np.testing.assert_allclose(o1, [0, 0, 5], atol=1e-15)
+    R1, o1 = brk.tracer().frames_numpy()[1]
+    np.testing.assert_allclose(R1, _rx(10), atol=1e-15)  # the break's tilt carries on
+    np.testing.assert_allclose(o1, _rx(10) @ [0, 0, 5], atol=1e-14)
+
+
 def test_rectangular_and_decentered_apertures(make_design):
     d = make_design("""
         [[surfaces]]

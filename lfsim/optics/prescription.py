@@ -16,12 +16,14 @@ normalization radius ``R_n``.
 
 Frames (like a lens-design program's coordinate breaks): a surface's local
 frame is the current frame, translated by ``decenter`` (x, y), then rotated by
-``tilt`` about x, then y, then z (degrees, right-handed). If ``return_axis``
-is true (default) the following surfaces continue from the frame *before*
-the tilt/decenter; otherwise they follow the tilted frame. ``thickness`` then
-moves the current frame along its own z. A surface with ``global_position``
-ignores the chain and is placed at that point of the global frame with its
-``tilt`` taken about the global axes. A surface with ``same_as`` reuses the
+``tilt`` (degrees, right-handed) as R = Rx·Ry·Rz: about x, then the rotated
+y′, then the rotated z″ (intrinsic). If ``return_axis`` is true (default on a
+surface; false by default on a coordinate break) the following surfaces
+continue from the frame *before* the tilt/decenter; otherwise they follow the
+tilted frame. ``thickness`` then moves the current frame along its own z. A
+surface with ``global_position`` ignores the chain: it is placed at that
+point of the global frame, its ``tilt`` (same order) taken from the global
+axes and its ``decenter`` along its own tilted x and y. A surface with ``same_as`` reuses the
 frame and shape of an earlier one (a physical surface met twice, e.g. a
 prism face used first in total internal reflection and then in refraction).
 """
