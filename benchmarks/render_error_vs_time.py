@@ -47,7 +47,8 @@ def main(argv=None) -> int:
         d = error_vs_time(design, content, cdp_mm=750.0, resolution=res, spps=spps, reference_spp=ref_spp,
                           densities=dens, pair_spp=pair_spp)
         doc["designs"][name] = d
-        rows_spp, rows_seg, t_ref, t_an = d["spp"], d["tessellation"], d["reference_seconds"], d["analytic_pair_seconds"]
+        rows_spp, rows_seg = d["spp"], d["tessellation"]
+        t_ref, t_an = d["reference_seconds"], d["analytic_pair_seconds"]
         print(f"\n{name}: analytic path, {res[0]}x{res[1]} px, vs {ref_spp} spp ({t_ref:.1f} s)")
         print("  spp    rel. RMSE   seconds")
         for r in rows_spp:

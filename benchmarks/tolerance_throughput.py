@@ -7,7 +7,8 @@ of 1 worker process (Dr.Jit on every core) and of 2 worker processes (one
 Dr.Jit thread each), each with the trials of a batch traced together, and
 ``serial, unfused`` (batch 1: one trial per launch) — checks that all four
 give identical records, prints trials per second, the ratio local cluster /
-serial, the scaling from 1 to 2 workers and the gain of tracing a batch together, and writes ``benchmarks/results/tolerance_throughput.json``.
+serial, the scaling from 1 to 2 workers and the gain of tracing a batch
+together, and writes ``benchmarks/results/tolerance_throughput.json``.
 
 Two rates per run: *wall* counts everything from the call to the last record
 (cluster start-up, each worker's imports and kernel compilation), *steady*

@@ -371,9 +371,9 @@ def _np3(v) -> np.ndarray:
 # ------------------------------------------------------------- benchmarks
 def bench_scene(path: Path, args, log) -> dict:
     import drjit as dr
+    from numpy_tracer import trace_numpy
 
     import lfsim
-    from numpy_tracer import trace_numpy
 
     design = lfsim.load(path)
     system = design.system
@@ -456,7 +456,8 @@ def bench_scene(path: Path, args, log) -> dict:
                 res[key] = rec
                 del r
                 log(f"    {key:18s} first {first['time']:7.3f} s  best {best:8.4f} s  "
-                    f"{n / best / 1e6:8.3f} M rays/s  peak RSS {rec['peak_rss_mb'] or 0:7.0f} MB  cpu/wall {rec['cpu_per_wall']:.2f}")
+                    f"{n / best / 1e6:8.3f} M rays/s  peak RSS {rec['peak_rss_mb'] or 0:7.0f} MB  "
+                    f"cpu/wall {rec['cpu_per_wall']:.2f}")
             del case
         dr.flush_malloc_cache()
 
@@ -465,7 +466,7 @@ def bench_scene(path: Path, args, log) -> dict:
         gc.collect()
         dr.flush_malloc_cache()
         _reset_peak_rss()
-        first, best, times, r = _timed(lambda: design.trace(o_n, d_n, wavelength_nm=lam),
+        first, best, times, r = _timed(lambda: design.trace(o_n, d_n, wavelength_nm=lam),  # noqa: F821 (del below)
                                        _repeats(args.repeats, n))
         res["lfsim_f64_api"] = {"rays": n, "timed_rays": n, "first_call_s": first, "best_s": best,
                                 "repeats_s": times, "rays_per_s": n / best, "peak_rss_mb": _rss_mb(),
@@ -636,10 +637,10 @@ def markdown(report: dict) -> str:
     head = ["scene", "N"] + [c[1] for c in COLUMNS] + [
         "f64 fwd / numpy", "f64 fwd / optiland", "design.trace / optiland", "(fwd+rev)/fwd f64", "(fwd+rev)/fwd f32",
         "rev/fwd f64", "rev/fwd f32"]
-    lines.append("Throughput in M rays/s (best of %d; * = baseline timed on a %s-ray prefix);"
+    lines.append(f"Throughput in M rays/s (best of {report['settings']['repeats']}; * = baseline timed on a "
+                 f"{report['settings']['numpy_max_rays']:.0e}-ray prefix);"
                  " ratios: speed-up (throughput ratio) and gradient cost (time ratio;"
-                 " rev = (fwd+rev) − fwd, the reverse pass alone)."
-                 % (report["settings"]["repeats"], f"{report['settings']['numpy_max_rays']:.0e}"))
+                 " rev = (fwd+rev) − fwd, the reverse pass alone).")
     lines.append("")
     lines.append("| " + " | ".join(head) + " |")
     lines.append("|" + "|".join(["---"] * 2 + ["---:"] * (len(head) - 2)) + "|")
@@ -691,7 +692,8 @@ def markdown(report: dict) -> str:
         for key in ("lfsim_f64_fwd", "lfsim_f32_fwd", "lfsim_f64_fwdrev", "lfsim_f32_fwdrev"):
             fk = r[key]["first_call_kernels"]
             cells.append(f"{r[key]['first_call_s']:.2f} [{fk['compiled']}]")
-        kpc = f"{r['lfsim_f64_fwd']['kernels_per_call']['launched']}, {r['lfsim_f64_fwdrev']['kernels_per_call']['launched']}"
+        kpc = (f"{r['lfsim_f64_fwd']['kernels_per_call']['launched']}, "
+               f"{r['lfsim_f64_fwdrev']['kernels_per_call']['launched']}")
         nl, szl = list(sc["sizes"].items())[-1]
         rss = szl["results"]["lfsim_f64_fwdrev"].get("peak_rss_mb")
         lines.append(f"| {Path(sc['scene']).stem} | {int(n0):.0e} | " + " | ".join(cells)
@@ -793,11 +795,12 @@ def main(argv=None) -> int:
                          "optiland_max_rays": args.optiland_max_rays, "optiland_glass": args.optiland_glass,
                          "seed": args.seed,
                          "drjit_kernel_cache": "~/.drjit (warm)" if args.warm_cache else "fresh private (cold)",
-                         "timing": "warm-up call (first_call_s) then best of max(repeats, min(20, 1e6/N)) calls; lfsim calls end with "
+                         "timing": "warm-up call (first_call_s) then best of max(repeats, min(20, 1e6/N)) calls; "
+                                   "lfsim calls end with "
                                    "dr.eval of p, d, status, opl (fwd) or of the gradient (fwd+rev) and "
                                    "dr.sync_thread(); includes Python-side IR construction",
-                         "fwdrev_scalar": "dr.sum(mode='symbolic') over status==OK rays of x^2 + y^2 at the image surface; "
-                                          "gradient w.r.t. the whole packed parameter array",
+                         "fwdrev_scalar": "dr.sum(mode='symbolic') over status==OK rays of x^2 + y^2 "
+                                          "at the image surface; gradient w.r.t. the whole packed parameter array",
                          "ratios": "lfsim_f64_fwd_over_* are throughput ratios (speed-ups); "
                                    "fwdrev_over_fwd_time_* are time ratios; rev_over_fwd_time_* = (fwd+rev - fwd)/fwd"},
             "environment": {

@@ -397,7 +397,8 @@ def cmd_focal_stack(args) -> int:
           f"(tunable lens {doc['tunable_power_diopters']}), {pupil:g} mm pupil, {spec.spp} spp, "
           f"{doc['resolution'][0]}x{doc['resolution'][1]} px, {doc['total_s']:.1f} s -> {args.out}")
     for im in doc["images"]:
-        ssim = f"SSIM {im['ssim_vs_natural']:.3f}, PSNR {im['psnr_vs_natural']:.1f} dB" if im["kind"] == "display" else ""
+        ssim = (f"SSIM {im['ssim_vs_natural']:.3f}, PSNR {im['psnr_vs_natural']:.1f} dB"
+                if im["kind"] == "display" else "")
         print(f"  {im['kind']:8s} focus {im['focus_mm']:7.1f} mm  {im['render_s']:6.1f} s  {ssim}")
     for r in doc["focus_cues"]["sharpest"]:
         print(f"  sharpest band ({r['kind']}, focus {r['focus_diopters']:.2f} D): {r['sharpest_diopters']:.2f} D "

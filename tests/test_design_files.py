@@ -70,7 +70,8 @@ def test_bad_values_name_file_key_and_value(tmp_path, old, new, key, value):
 
 
 def test_array_pitch_and_size_are_validated(tmp_path):
-    base = GOOD.replace("[[surfaces]]\nradius = 20.0", '[arrays.mla]\nm = 3\nn = 2\npitch = 1.0\n[[surfaces]]\nradius = 20.0\narray = "mla"', 1)
+    base = GOOD.replace("[[surfaces]]\nradius = 20.0",
+                        '[arrays.mla]\nm = 3\nn = 2\npitch = 1.0\n[[surfaces]]\nradius = 20.0\narray = "mla"', 1)
     base = base.replace("semi_diameter = 5.0", "")
     p = tmp_path / "a.toml"
     p.write_text(base)

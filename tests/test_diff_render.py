@@ -10,7 +10,6 @@ import sys
 import drjit as dr
 import numpy as np
 import pytest
-
 from conftest import ROOT
 
 SMALL = {"arrays.mla.m": 5, "arrays.mla.n": 3}  # ini_ideal with 5 x 3 lenslets: a 625 x 375 px display
@@ -41,10 +40,10 @@ def test_reverse_map_reproduces_the_reversed_system(small):
 def test_primal_matches_the_mitsuba_analytic_path(small):
     """Same estimator as focal_stack's analytic path: difference at the seed-to-seed noise."""
     from lfsim.render.analytic import ReverseOptics
+    from lfsim.render.diff_render import AnalyticRenderer, ViewSpec
     from lfsim.render.display_eye import attach, release, sensor_dict
     from lfsim.render.eye import EyeSpec
     from lfsim.render.focal_stack import INTEGRATOR, render
-    from lfsim.render.diff_render import AnalyticRenderer, ViewSpec
 
     r0, _ = small
     W, H, spp = 24, 14, 64

@@ -58,7 +58,8 @@ def test_folded_image_lies_where_the_fold_sends_it(tmp_path):
 
 def test_parabasal_matrix_equals_finite_parabasal_rays(tmp_path):
     """AD parabasal derivatives vs real rays offset by ±h about the axis ray."""
-    text = TRIPLET.read_text().replace('name = "L2_front"', 'name = "L2_front"\ntilt = [1.5, 0.8, 0.0]\ndecenter = [0.05, -0.1]')
+    text = TRIPLET.read_text().replace('name = "L2_front"',
+                                       'name = "L2_front"\ntilt = [1.5, 0.8, 0.0]\ndecenter = [0.05, -0.1]')
     p = tmp_path / "tilted.toml"
     p.write_text(text)
     d = lfsim.load(p)

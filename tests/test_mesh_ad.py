@@ -10,7 +10,6 @@ import sys
 import drjit as dr
 import numpy as np
 import pytest
-
 from conftest import ROOT
 
 SMALL = {"arrays.mla.m": 5, "arrays.mla.n": 3}
@@ -43,14 +42,12 @@ def geometry(coaxial):
 
 @pytest.fixture(scope="module")
 def mesh_setup(coaxial):
-    from lfsim.design.content import load_content
-    from lfsim.render import gradcheck as gc
-    from lfsim.render.diff_render import ViewSpec
-    from lfsim.render.mesh_ad import MeshRenderer
-
     from scipy.ndimage import gaussian_filter
 
-    from lfsim.render.diff_render import AnalyticRenderer
+    from lfsim.design.content import load_content
+    from lfsim.render import gradcheck as gc
+    from lfsim.render.diff_render import AnalyticRenderer, ViewSpec
+    from lfsim.render.mesh_ad import MeshRenderer
 
     content = load_content(ROOT / "scenes/fig9_wall.toml")
     view = ViewSpec(resolution=(64, 36), spp=8, focus_mm=[1000.0])

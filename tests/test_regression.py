@@ -6,14 +6,14 @@ on a lenslet stride of 4 at the 1 D CDP state, without the contrast search.
 """
 
 import json
-from pathlib import Path
 import xml.etree.ElementTree as ET
+from pathlib import Path
 
 import pytest
 
 from lfsim.cli import main
-from lfsim.regression import check, update
 from lfsim.regression import baseline as bl
+from lfsim.regression import check, update
 
 SCENES = Path(__file__).resolve().parents[1] / "scenes"
 

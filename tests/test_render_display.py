@@ -1,6 +1,5 @@
 """Display layout, content scenes, elemental images and the analytic reverse path."""
 
-import math
 
 import numpy as np
 import pytest
@@ -100,7 +99,8 @@ def test_elemental_images_show_the_content_seen_along_each_pixel_ray(scenes):
         clear = np.abs(x_at) > 1.0
         lit = x_at < 0
         assert 0.2 < lit.mean() < 0.8
-        np.testing.assert_allclose(img[clear & lit], np.broadcast_to([0.25, 0.5, 1.0], img[clear & lit].shape), rtol=1e-6)
+        np.testing.assert_allclose(img[clear & lit], np.broadcast_to([0.25, 0.5, 1.0], img[clear & lit].shape),
+                                   rtol=1e-6)
         assert np.all(img[clear & ~lit] == 0.0)
 
 

@@ -2,12 +2,11 @@
 
 import numpy as np
 import pytest
+from helpers import reversed_system, trace_np
+from test_gradients import FREEFORM
 
 import lfsim
 from lfsim.optics.tracer import SequentialTracer
-
-from helpers import reversed_system, trace_np
-from test_gradients import FREEFORM
 
 FOLDED = """
 [system]

@@ -11,10 +11,9 @@ import math
 import drjit as dr
 import numpy as np
 import pytest
+from test_examples import sag_numpy
 
 from lfsim.optics.tracer import Status
-
-from test_examples import sag_numpy
 
 PRECISIONS = ("float64", "float32")
 
@@ -98,8 +97,8 @@ def test_total_internal_reflection_at_the_critical_angle(make_design, accuracy, 
                      np.max(np.abs(r.directions[0] - refl)), 1e-15 if prec == "float64" else 1e-6, prec)
     a, b = res["float64"], res["float32"]
     if a.status[0] == b.status[0]:
-        accuracy(f"{interaction} at θc{'+' if above else '-'}1e-9: direction", np.max(np.abs(a.directions - b.directions)),
-                 2e-3, "f32 vs f64")
+        accuracy(f"{interaction} at θc{'+' if above else '-'}1e-9: direction",
+                 np.max(np.abs(a.directions - b.directions)), 2e-3, "f32 vs f64")
     else:  # 1e-9 rad is below float32's angular resolution: the status may differ, the values are finite
         assert {int(a.status[0]), int(b.status[0])} <= {Status.OK, Status.TIR, Status.NO_TIR}
         accuracy(f"{interaction} at θc{'+' if above else '-'}1e-9: float32 status {Status(int(b.status[0])).name}"

@@ -12,7 +12,6 @@ import sys
 
 import numpy as np
 import pytest
-
 from conftest import ROOT
 
 _spec = importlib.util.spec_from_file_location("synthetic_aberrations",

@@ -375,7 +375,8 @@ def test_trials_traced_together_are_bit_identical_to_trials_traced_alone(tmp_pat
     text = (ROOT / "scenes" / "ini_freeform_optimized.toml").read_text()
     i = text.index("[tolerance.sampling]")
     j = text.index("[tolerance.targets]")
-    text = text[:i] + "[tolerance.sampling]\nstride = [16, 8]\nfields = 1\npupil = 3\nmtf_grid = 8\nrefine = 0\n\n" + text[j:]
+    sampling = "[tolerance.sampling]\nstride = [16, 8]\nfields = 1\npupil = 3\nmtf_grid = 8\nrefine = 0\n\n"
+    text = text[:i] + sampling + text[j:]
     p = tmp_path / "ff.toml"
     p.write_text(text)
     design = lfsim.load(p)

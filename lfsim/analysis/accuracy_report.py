@@ -37,6 +37,7 @@ import os
 import platform
 import time
 from dataclasses import asdict, dataclass, field, replace
+from datetime import UTC
 from pathlib import Path
 
 import numpy as np
@@ -621,8 +622,8 @@ def markdown(doc: dict, knobs: list[Knob]) -> str:
            "Plots: error against seconds, the default starred, the target dashed. \"Cheapest\" is the fastest "
            "setting measured; time differences below about 20 % are within this machine's run-to-run noise.", "",
            "## Summary", "",
-           "| stage | knob | lfsim default | errors at the default (targeted ones, worst design) | seconds at the default | target | "
-           "meets it | cheapest setting that meets it |",
+           "| stage | knob | lfsim default | errors at the default (targeted ones, worst design) "
+           "| seconds at the default | target | meets it | cheapest setting that meets it |",
            "|---|---|---|---:|---:|---|---|---|"]
     for k, v in zip(knobs, doc["verdicts"]):
         t = _cell("; ".join(f"{k.errors[g.index]} {_bound(g)}" for g in k.targets) or "—")
@@ -670,7 +671,7 @@ def report(out_dir="docs", quick: bool = False, log=lambda msg: None, scenes: Pa
     design per stage) for tests. Returns the document (knobs with their rows,
     verdicts, machine, timings), JSON-ready.
     """
-    from datetime import datetime, timezone
+    from datetime import datetime
 
     from ..fileio import write_text
 
@@ -692,7 +693,7 @@ def report(out_dir="docs", quick: bool = False, log=lambda msg: None, scenes: Pa
         else:
             raise ValueError(f"stage = {stage!r}: expected tracer, metrics, render or eye")
     out = Path(out_dir)
-    doc = {"generated": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"), "quick": bool(quick),
+    doc = {"generated": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"), "quick": bool(quick),
            "machine": _machine(), "knobs": [_knob_dict(k) for k in knobs], "verdicts": [verdict(k) for k in knobs],
            "why": {k.key: why(k) for k in knobs}, "plots": [f"img/accuracy_{k.key}.png" for k in knobs]}
     for k in knobs:

@@ -42,7 +42,7 @@ class PupilSets:
             start += len(v)
         return cls(np.concatenate(list(parts.values())), slices, weights)
 
-    def subset(self, names) -> "PupilSets":
+    def subset(self, names) -> PupilSets:
         """Only the named sample sets (same samples and weights), e.g. what one metric needs."""
         slices, start = {}, 0
         for k in names:

@@ -156,7 +156,7 @@ def footprints(res, path, k=None):
     fig, ax = plt.subplots(figsize=(6.5, 6), dpi=130)
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     done = []
-    for j, (m, n) in enumerate(wanted):
+    for m, n in wanted:
         i = _nearest(subs, k, m, n)
         if i is None or i in done:
             continue

@@ -19,9 +19,9 @@ no lighting noise and the natural view is the exact ground truth::
     texture = { type = "noise", feature_mm = 3.0, seed = 1 }
     radiance = 1.0               # scale (or [r, g, b])
 
-Texture types: ``constant`` (1, so the quad shows its ``radiance``), ``noise`` (binary band-limited noise, ``feature_mm``, ``seed``,
-``texel_mm``), ``checker`` (``period_mm``), ``bars`` (vertical bars,
-``period_mm``), ``image`` (``path`` relative to the file, PNG/JPEG/EXR,
+Texture types: ``constant`` (1, so the quad shows its ``radiance``), ``noise``
+(binary band-limited noise, ``feature_mm``, ``seed``, ``texel_mm``), ``checker``
+(``period_mm``), ``bars`` (vertical bars, ``period_mm``), ``image`` (``path`` relative to the file, PNG/JPEG/EXR,
 sRGB decoded to linear). The quad's u axis runs along the texture's columns
 (left to right), v along its rows (bottom to top); its front (u × v) must
 face the eye.

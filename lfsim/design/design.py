@@ -73,7 +73,7 @@ class Design:
         self.optimize = optimize_from_dict(self.raw, system, self.ini, path or "<dict>")
 
     @classmethod
-    def from_dict(cls, data: dict, file: str = "<dict>") -> "Design":
+    def from_dict(cls, data: dict, file: str = "<dict>") -> Design:
         return cls(system_from_dict(data, file), data, file)
 
     # ------------------------------------------------------------ properties

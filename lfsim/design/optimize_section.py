@@ -129,7 +129,7 @@ class OptimizeTargets:
     min_prism_thickness: float = 1.0
     tir_margin_deg: float = 1.0
 
-    def resolve(self, ini) -> "OptimizeTargets":
+    def resolve(self, ini) -> OptimizeTargets:
         """A copy with ``gd_max_deg`` / ``pa_max`` taken from an :class:`IniSpec` where unset."""
         if ini is None:
             return self
@@ -176,7 +176,7 @@ class OptimizeSpec:
     weights: OptimizeWeights = field(default_factory=OptimizeWeights)
 
     @classmethod
-    def default(cls, *, ini: bool = True) -> "OptimizeSpec":
+    def default(cls, *, ini: bool = True) -> OptimizeSpec:
         """The settings of a design without ``[optimize]``: no variables, default
         solver, sampling, targets and weights; all stages for an InI design
         (``ini=True``), only ``"full"`` otherwise."""

@@ -53,7 +53,6 @@ allowed); the Monte Carlo engine is :mod:`lfsim.tolerance`.
 from __future__ import annotations
 
 import difflib
-import math
 import re
 from dataclasses import dataclass, field
 

@@ -48,9 +48,9 @@ from pathlib import Path
 import tomli_w
 
 from ..fileio import write_text
+from ..optics.vector import GAP
 from .loader import ini_from_dict, system_from_dict
 from .optimize_section import fixed_parameter_reason
-from ..optics.vector import GAP
 
 _XY_RE = re.compile(r"^x(\d+)y(\d+)$")
 _A_RE = re.compile(r"^A(\d+)$")

@@ -217,7 +217,7 @@ class IniModel:
         self.S0, self.JS = S0[0, :2], JS[0, :2]
         self.L0, self.JL = L0[0], JL[0]
 
-    def linear_views(self, values) -> list["IniModel"]:
+    def linear_views(self, values) -> list[IniModel]:
         """First-order views of the design at other parameter values, in two launches.
 
         ``values``: (V, n_states, n_params) parameter vectors per CDP state (the

@@ -298,7 +298,6 @@ def _aim_many(models: list[IniModel], u, s, m, n, rho, k, iterations: int, stack
     tr, P, nk = stacked or _stack(models)
     T = tr.T
     sp = models[0].spec
-    K = len(models)
     s_r = np.asarray(s, dtype=np.float64).reshape(-1, 2)
     N = len(s_r)
     u = np.broadcast_to(np.asarray(u, dtype=np.int64), N)

@@ -1,6 +1,7 @@
 """Optics: surfaces, frames, materials, the sequential tracer, first-order optics."""
 
-from .materials import Material, lookup as material
+from .materials import Material
+from .materials import lookup as material
 from .prescription import Aperture, LensletArray, Surface, System
 
 __all__ = ["Aperture", "LensletArray", "Material", "Surface", "System", "material"]

@@ -32,7 +32,7 @@ class Shape:
     xy: dict
     inv_norm: object
 
-    def detached(self) -> "Shape":
+    def detached(self) -> Shape:
         return Shape(
             dr.detach(self.c),
             dr.detach(self.k),

@@ -26,7 +26,7 @@ import drjit as dr
 import numpy as np
 
 from .. import backend
-from .prescription import Surface, System
+from .prescription import System
 from .surfaces import intersect, normal, sag
 from .vector import DesignVector
 

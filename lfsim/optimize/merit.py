@@ -61,8 +61,8 @@ from ..design.design import Design
 from ..ini.model import IniModel
 from ..ini.subsystems import field_grid, sample, trace_rays_jacobian
 from ..metrics import pupil
-from ..optics.solids import prism_thickness, prisms
 from ..metrics.spot import ARCMIN
+from ..optics.solids import prism_thickness, prisms
 
 LOST = 10.0  # residual of a lost ray (arcmin-equivalent)
 PRISM_POINTS = 9  # sample points per axis of a prism face's clear aperture (thickness)

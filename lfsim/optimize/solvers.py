@@ -36,9 +36,10 @@ import json
 import os
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Protocol
+from typing import Protocol
 
 import numpy as np
 from tqdm import tqdm
@@ -75,7 +76,7 @@ class Bounds:
             raise ValueError("bounds: need lower <= upper and no NaN")
 
     @classmethod
-    def none(cls, K: int) -> "Bounds":
+    def none(cls, K: int) -> Bounds:
         """Unbounded box in ``K`` variables."""
         return cls(np.full(K, -np.inf), np.full(K, np.inf))
 

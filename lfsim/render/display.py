@@ -60,7 +60,7 @@ class DisplayLayout:
     ei_basis: np.ndarray  # (2, 2) columns: EI-centre steps for m + 1 and n + 1
 
     @classmethod
-    def from_model(cls, model, k: int = 0) -> "DisplayLayout":
+    def from_model(cls, model, k: int = 0) -> DisplayLayout:
         """Layout of CDP state ``k`` of an :class:`~lfsim.ini.model.IniModel`."""
         spec, arr = model.spec, model.arr
         c = model.ei_centers(k, np.array([0, 1, 0]), np.array([0, 0, 1]))

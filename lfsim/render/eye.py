@@ -78,8 +78,8 @@ import numpy as np
 
 from . import mitsuba as _mitsuba
 from .eye_models import (  # re-exported API
-    axial_rms_spot,
     arizona_first_order,
+    axial_rms_spot,
     chief_ray_table,
     eye_origin_depth,
     iris_radius,

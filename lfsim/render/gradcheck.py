@@ -511,8 +511,8 @@ def run(design, content, names: list[str], view, rel_step: float | None = None,
 
             display = gaussian_filter(display, (display_blur, display_blur, 0), mode="nearest")
     if mesh:
-        from .meshes import tessellation as _tess
         from .mesh_ad import MeshRenderer
+        from .meshes import tessellation as _tess
 
         r = MeshRenderer(design, view, display=display, tessellation=_tess(tessellation), fresnel=fresnel)
         precision = "float32"
@@ -546,6 +546,7 @@ def table(doc: dict) -> str:
     for p in doc["params"]:
         kind = "boundary" if p["boundary"] else "interior"
         lines.append(f"{p['name']:18s} {p['value']:12.6g} {p['ad']:12.5g} {p['fd']:12.5g} {p['rel_err']:9.2e} "
-                     f"{p['ad_kept']:12.5g} {p['fd_interior']:12.5g} {p['interior_rel_err']:9.2e} {p['fd_step']:9.2e} {p['boundary_term']:11.4g} {100 * p['bias']:7.1f}% "
+                     f"{p['ad_kept']:12.5g} {p['fd_interior']:12.5g} {p['interior_rel_err']:9.2e} "
+                     f"{p['fd_step']:9.2e} {p['boundary_term']:11.4g} {100 * p['bias']:7.1f}% "
                      f"{p['edge_samples']:6d}  {kind}")
     return "\n".join(lines)

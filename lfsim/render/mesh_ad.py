@@ -34,9 +34,8 @@ The design vector is the design's parameter table
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import weakref
+from dataclasses import dataclass
 
 import drjit as dr
 import numpy as np
@@ -97,7 +96,7 @@ class MeshGeometry:
         system = design.system
         self.system = system
         self.tracer = tracer if tracer is not None else SequentialTracer(system, "float64")
-        self.T = T = self.tracer.T
+        self.T = self.tracer.T
         self.names = self.tracer.names
         self.index = self.tracer.index
         values = np.asarray(values, dtype=np.float64).ravel()
@@ -310,7 +309,7 @@ class MeshGeometry:
 
 # ------------------------------------------------------------ the scene
 #: Every MeshScene alive (see :meth:`MeshScene.release`).
-_LIVE_SCENES: "weakref.WeakSet" = weakref.WeakSet()
+_LIVE_SCENES: weakref.WeakSet = weakref.WeakSet()
 
 
 def _flat32(v):
@@ -333,10 +332,10 @@ class MeshScene:
     """
 
     def __init__(self, geom: MeshGeometry, layout, image, mesh_dir=None, max_depth: int | None = None):
+        import hashlib
+
         from . import ad_integrator
         from .optics_scene import _mesh_dir, ply_bytes
-
-        import hashlib
 
         mi = ad_integrator.register()
         _bsdfs.register()
@@ -380,7 +379,7 @@ class MeshScene:
                                    "integrator": {"type": "lfsim_specular", "max_depth": self.max_depth}},
                                   optimize=False)
         self.params = mi.traverse(self.scene)
-        for k, name, has_n, _ in self._parts:
+        for k, name, _, _ in self._parts:
             nv = dr.width(self.params[f"{name}.vertex_positions"]) // 3
             if nv != len(geom.parts[k].mesh.vertices):
                 raise RuntimeError(f"mesh {name}: Mitsuba loaded {nv} vertices, lfsim wrote "

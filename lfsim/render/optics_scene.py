@@ -121,7 +121,7 @@ def reference_bundle(design, model: _m.SurfaceModel) -> tuple[np.ndarray, np.nda
         return np.zeros((0, 3)), np.zeros((0, 3))
     fo = design.first_order(model.wavelength_nm)
     os_, ds = [], []
-    for f in sorted({float(v) for f in system.fields for v in (f, -f)}):
+    for f in sorted({float(v) for f0 in system.fields for v in (f0, -f0)}):
         o, d = field_rays(system, fo, f, pupil_grid(4))
         os_.append(o)
         ds.append(d)

@@ -26,7 +26,7 @@ from ..design.errors import DesignError
 from ..design.loader import system_from_dict
 from ..design.optimize_section import TUNABLE
 from ..design.overrides import apply_overrides
-from ..design.tolerance_section import Tolerance, ToleranceSpec, _TUNABLE_KEY, nominal_value
+from ..design.tolerance_section import _TUNABLE_KEY, Tolerance, ToleranceSpec, nominal_value
 from ..design.writer import apply_values
 
 

@@ -21,7 +21,7 @@ class RecordStore:
         self.records: dict[str, dict] = {}
         self.duplicates = 0
 
-    def load(self) -> "RecordStore":
+    def load(self) -> RecordStore:
         if self.path.exists():
             data = self.path.read_bytes()
             if data and not data.endswith(b"\n"):  # torn last line: cut it so appends start clean
