@@ -341,13 +341,13 @@ def _view_of(args, verb: str):
 
     content = load_content(args.content)
     view = content.view
-    design_path = args.design or view.get("design")
+    design_path = args.design or view.design
     if design_path is None:
         raise InputError(f"{args.content}: view.design = missing: give a DESIGN argument")
     design = _load_design(args, design_path)
     if design.ini is None:
         raise InputError(f"{design_path}: ini = missing: {verb} renders an InI design ([ini] section)")
-    focus = _float_list(args.focus_mm, "--focus-mm") if args.focus_mm else view.get("focus_mm", [600.0, 1000.0, 1400.0])
+    focus = _float_list(args.focus_mm, "--focus-mm") if args.focus_mm else list(view.focus_mm)
     if any(not f > 0 for f in focus):
         raise InputError(f"--focus-mm = {args.focus_mm!r}: distances must be > 0")
     if args.cdp_mm is not None:
@@ -358,8 +358,8 @@ def _view_of(args, verb: str):
         if not cdp > 0 or math.isnan(cdp):
             raise InputError(f"--cdp-mm = {args.cdp_mm!r}: must be > 0 (inf allowed)")
     else:
-        cdp = view.get("cdp_mm", 1000.0)
-    pupil = args.pupil_mm if args.pupil_mm is not None else view.get("pupil_diameter", 3.0)
+        cdp = view.cdp_mm
+    pupil = args.pupil_mm if args.pupil_mm is not None else view.pupil_diameter_mm
     if not (math.isfinite(pupil) and pupil > 0):
         raise InputError(f"--pupil-mm = {pupil!r}: must be > 0")
     return content, design_path, design, focus, cdp, pupil
@@ -541,9 +541,9 @@ def cmd_sweep(args) -> int:
         view = content.view
         if args.spp < 1:
             raise InputError(f"--spp = {args.spp}: must be >= 1")
-        spec = FocalStackSpec(focus_mm=[float(f) for f in view.get("focus_mm", [600.0, 1000.0, 1400.0])],
-                              cdp_mm=view.get("cdp_mm", 1000.0), pupil_diameter_mm=view.get("pupil_diameter", 3.0),
-                              spp=args.spp, resolution=_int_pair(args.resolution, "--resolution"))
+        spec = FocalStackSpec(focus_mm=list(view.focus_mm), cdp_mm=view.cdp_mm,
+                              pupil_diameter_mm=view.pupil_diameter_mm, spp=args.spp,
+                              resolution=_int_pair(args.resolution, "--resolution"))
     doc = run_sweep(design, args.out, axes, fixed, stride=stride, reference=args.reference, render=args.render,
                     render_spec=spec, content=content, scheduler=sched, workers=workers, serial=serial,
                     batch=args.batch, progress=sys.stderr.isatty() and not args.json)

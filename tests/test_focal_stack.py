@@ -5,6 +5,7 @@ import json
 import numpy as np
 import pytest
 
+from lfsim.analysis.compare import compare_images
 from lfsim.cli import main
 from lfsim.render.focal_stack import read_exr
 
@@ -28,6 +29,11 @@ def test_focal_stack_cli_writes_the_stack(scenes, tmp_path, capsys):
         if im["kind"] == "display":
             assert -1 <= im["ssim_vs_natural"] <= 1 and im["psnr_vs_natural"] > 0
             assert img.mean() > 0.05  # the display shows the wall
+            # One SSIM/PSNR convention: index.json says what `lfsim compare` says of the same pair.
+            nat = next(n for n in doc["images"] if n["kind"] == "natural" and n["focus_mm"] == im["focus_mm"])
+            cmp = compare_images(read_exr(out / nat["exr"])[0], img)
+            assert abs(cmp["ssim"] - im["ssim_vs_natural"]) <= 1e-12
+            assert abs(cmp["psnr"] - im["psnr_vs_natural"]) <= 1e-9
     ei, hdr = read_exr(out / "elemental_images.exr")
     assert ei.shape == (9 * 125, 17 * 125, 3) and hdr["lfsim_kind"] == "elemental_images"
     assert (out / "contact_sheet.png").exists() and (out / "focus_cues.png").exists()
@@ -74,3 +80,25 @@ def test_mesh_path_focal_stack_matches_the_analytic_path(scenes, tmp_path):
     assert np.isfinite(mesh).all() and mesh.mean() > 0.1
     assert relative_rmse(mesh, a2) < 1.25 * noise
     assert abs(mesh.mean() / a2.mean() - 1) < 0.03
+
+
+def test_view_defaults_have_one_owner(scenes, tmp_path, capsys):
+    """FocalStackSpec, ViewSpec and the render verbs take a [view] without keys from
+    ContentView's defaults (the CDP at 750 mm, focus 600/1000/1400 mm, a 3 mm pupil)."""
+    from lfsim.design.content import VIEW_DEFAULTS, load_content
+    from lfsim.render.diff_render import ViewSpec
+    from lfsim.render.focal_stack import FocalStackSpec
+
+    for spec in (FocalStackSpec(), ViewSpec()):
+        assert spec.cdp_mm == VIEW_DEFAULTS.cdp_mm == 750.0
+        assert tuple(spec.focus_mm) == VIEW_DEFAULTS.focus_mm == (600.0, 1000.0, 1400.0)
+        assert spec.pupil_diameter_mm == VIEW_DEFAULTS.pupil_diameter_mm == 3.0
+    text = (scenes / "fig9_wall.toml").read_text()
+    bare = tmp_path / "bare.toml"
+    i, j = text.index("[view]"), text.index("[[objects]]")
+    bare.write_text(text[:i] + text[j:])
+    assert load_content(bare).view == VIEW_DEFAULTS
+    out = tmp_path / "fs"
+    assert main(["focal-stack", str(scenes / "ini_ideal.toml"), "--content", str(bare), "--focus-mm", "1000",
+                 "--spp", "1", "--resolution", "96,56", "--out", str(out), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["cdp_mm"] == VIEW_DEFAULTS.cdp_mm

@@ -61,7 +61,7 @@ def test_model_at_depth_interpolates_given_tunable_powers(scenes):
 
 def test_content_file_and_errors(scenes, tmp_path):
     c = load_content(scenes / "fig9_wall.toml")
-    assert c.view["cdp_mm"] == 750.0 and c.view["focus_mm"] == [600.0, 1000.0, 1400.0]
+    assert c.view.cdp_mm == 750.0 and c.view.focus_mm == (600.0, 1000.0, 1400.0)
     q = c.objects[0]
     assert -q.corners[0, 2] == pytest.approx(500.0) and -q.corners[1, 2] == pytest.approx(1667.0)
     ok = {"objects": [{"corners": [[-1, -1, -100], [1, -1, -100], [-1, 1, -100]]}]}

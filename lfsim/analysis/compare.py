@@ -16,6 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
+# One convention for every similarity lfsim reports.
+from ..metrics.image import data_range, psnr, ssim  # noqa: F401 (part of this module's API)
+
 #: Rec. 709 luminance weights (linear RGB).
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 
@@ -79,38 +82,6 @@ def check_compatible(a: np.ndarray, b: np.ndarray, name_a="A", name_b="B", chann
         raise CompareInputError(f"{name_b}: channels {','.join(cb)} differ from {name_a}: {','.join(ca)}")
 
 
-# ------------------------------------------------------------------ metrics
-def data_range(ref: np.ndarray) -> float:
-    """Value range of the reference image (max − min); 1 for a constant image."""
-    r = float(np.max(ref) - np.min(ref))
-    return r if r > 0 else max(float(np.max(np.abs(ref))), 1.0)
-
-
-def psnr(ref: np.ndarray, img: np.ndarray, rng: float | None = None) -> float:
-    """Peak signal-to-noise ratio (dB) of ``img`` against ``ref``; ``inf`` when identical."""
-    rng = data_range(ref) if rng is None else rng
-    mse = float(np.mean((np.asarray(img, np.float64) - np.asarray(ref, np.float64)) ** 2))
-    return math.inf if mse == 0.0 else 10.0 * math.log10(rng * rng / mse)
-
-
-def ssim(ref: np.ndarray, img: np.ndarray, rng: float | None = None) -> float | None:
-    """Mean structural similarity (scikit-image, 7×7 window, mean over channels).
-
-    None for images smaller than 3 px on a side (no window fits).
-    """
-    from skimage.metrics import structural_similarity
-
-    ref, img = np.asarray(ref, np.float64), np.asarray(img, np.float64)
-    if ref.ndim == 2:
-        ref, img = ref[..., None], img[..., None]
-    side = min(ref.shape[:2])
-    if side < 3:
-        return None
-    win = min(7, side if side % 2 else side - 1)
-    rng = data_range(ref) if rng is None else rng
-    if ref.shape[2] == 1:
-        return float(structural_similarity(ref[..., 0], img[..., 0], data_range=rng, win_size=win))
-    return float(structural_similarity(ref, img, data_range=rng, win_size=win, channel_axis=2))
 
 
 def compare_images(ref: np.ndarray, img: np.ndarray, channels: list[str] | None = None) -> dict:

@@ -7,7 +7,8 @@ self-luminous textured quads (their radiance is the texture), so a render has
 no lighting noise and the natural view is the exact ground truth::
 
     name = "slanted wall"
-    [view]                       # defaults for renders of this content (all optional)
+    [view]                       # defaults for renders of this content (all optional;
+                                 # unset keys take ContentView's defaults, shown here)
     design = "ini_coaxial.toml"  # path relative to this file
     cdp_mm = 750.0               # CDP depth the display state is set to (inf allowed)
     focus_mm = [600.0, 1000.0, 1400.0]
@@ -31,7 +32,7 @@ from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -63,13 +64,32 @@ class Quad:
         return self.corners[2] - self.corners[0]
 
 
+@dataclass(frozen=True)
+class ContentView:
+    """A content file's ``[view]``: how its renders look by default.
+
+    The field defaults are the one statement of lfsim's view defaults: the
+    render specs (``FocalStackSpec``, ``ViewSpec``), the CLI verbs and
+    ``lfsim regress`` all start from them. ``design`` is an absolute path or None.
+    """
+
+    design: str | None = None
+    cdp_mm: float = 750.0  # CDP depth the display state is set to (inf allowed)
+    focus_mm: tuple[float, ...] = (600.0, 1000.0, 1400.0)
+    pupil_diameter_mm: float = 3.0
+
+
+#: lfsim's view defaults (a ``[view]`` that sets nothing).
+VIEW_DEFAULTS = ContentView()
+
+
 @dataclass
 class ContentScene:
     path: str
     name: str
     objects: list[Quad]
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    view: dict = field(default_factory=dict)
+    view: ContentView = VIEW_DEFAULTS
 
 
 def _num(file, key, v, positive=False, allow_inf=False):
@@ -168,6 +188,10 @@ def content_from_dict(data: dict, file: str = "<dict>", base: Path = Path(".")) 
     view = data.get("view", {})
     if not isinstance(view, dict):
         raise DesignError(file, "view", view, "expected a table")
+    unknown = set(view) - {"design", "cdp_mm", "focus_mm", "pupil_diameter", "background"}
+    if unknown:
+        k = sorted(unknown)[0]
+        raise DesignError(file, f"view.{k}", view[k], "unknown key")
     v = {}
     if "design" in view:
         d = view["design"]
@@ -180,13 +204,9 @@ def content_from_dict(data: dict, file: str = "<dict>", base: Path = Path(".")) 
         f = view["focus_mm"]
         if not isinstance(f, list) or not f:
             raise DesignError(file, "view.focus_mm", f, "expected a list of distances (mm)")
-        v["focus_mm"] = [_num(file, f"view.focus_mm[{i}]", x, positive=True, allow_inf=True)
-                         for i, x in enumerate(f)]
+        v["focus_mm"] = tuple(_num(file, f"view.focus_mm[{i}]", x, positive=True, allow_inf=True)
+                              for i, x in enumerate(f))
     if "pupil_diameter" in view:
-        v["pupil_diameter"] = _num(file, "view.pupil_diameter", view["pupil_diameter"], positive=True)
-    unknown = set(view) - set(v) - {"background"}
-    if unknown:
-        k = sorted(unknown)[0]
-        raise DesignError(file, f"view.{k}", view[k], "unknown key")
+        v["pupil_diameter_mm"] = _num(file, "view.pupil_diameter", view["pupil_diameter"], positive=True)
     bg = _rgb(file, "view.background", view.get("background", 0.0))
-    return ContentScene(file, str(data.get("name", Path(file).stem)), out, bg, v)
+    return ContentScene(file, str(data.get("name", Path(file).stem)), out, bg, ContentView(**v))

@@ -173,9 +173,9 @@ def render(design, opts: dict, seeds, log=None) -> Rendered:
 
     content = load_content(opts["content"])
     view = content.view
-    focus = opts["focus_mm"] or [float(f) for f in view.get("focus_mm", [600.0, 1000.0, 1400.0])]
-    cdp = _cdp(opts["cdp_mm"]) if opts["cdp_mm"] is not None else float(view.get("cdp_mm", 1000.0))
-    pupil = opts["pupil_mm"] if opts["pupil_mm"] is not None else float(view.get("pupil_diameter", 3.0))
+    focus = opts["focus_mm"] or list(view.focus_mm)
+    cdp = _cdp(opts["cdp_mm"]) if opts["cdp_mm"] is not None else view.cdp_mm
+    pupil = opts["pupil_mm"] if opts["pupil_mm"] is not None else view.pupil_diameter_mm
     res = tuple(opts["resolution"]) if opts["resolution"] else None
     images: dict = {}
     docs = []

@@ -45,6 +45,7 @@ import drjit as dr
 import numpy as np
 
 from .. import backend
+from ..design.content import VIEW_DEFAULTS
 from ..optics.reverse import reversed_system
 from ..optics.tracer import RayState, SequentialTracer
 
@@ -205,9 +206,9 @@ class RayBatch:
 class ViewSpec:
     """What :class:`AnalyticRenderer` renders (lengths mm; None: the content's [view])."""
 
-    focus_mm: list[float] = field(default_factory=lambda: [600.0, 1000.0, 1400.0])
-    cdp_mm: float = 750.0
-    pupil_diameter_mm: float = 3.0
+    focus_mm: list[float] = field(default_factory=lambda: list(VIEW_DEFAULTS.focus_mm))
+    cdp_mm: float = VIEW_DEFAULTS.cdp_mm
+    pupil_diameter_mm: float = VIEW_DEFAULTS.pupil_diameter_mm
     resolution: tuple[int, int] = (96, 54)
     spp: int = 16
     seed: int = 0

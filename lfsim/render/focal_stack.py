@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..design.content import VIEW_DEFAULTS
 from . import mitsuba
 
 INTEGRATOR = {"type": "path", "max_depth": 2, "hide_emitters": False}
@@ -39,9 +40,9 @@ MESH_INTEGRATOR = {"type": "path", "max_depth": 256, "rr_depth": 1024, "hide_emi
 class FocalStackSpec:
     """What to render (lengths mm; None: the content file's [view] or a default)."""
 
-    focus_mm: list[float] = field(default_factory=lambda: [600.0, 1000.0, 1400.0])
-    cdp_mm: float = 750.0
-    pupil_diameter_mm: float = 3.0
+    focus_mm: list[float] = field(default_factory=lambda: list(VIEW_DEFAULTS.focus_mm))
+    cdp_mm: float = VIEW_DEFAULTS.cdp_mm
+    pupil_diameter_mm: float = VIEW_DEFAULTS.pupil_diameter_mm
     spp: int = 64
     resolution: tuple[int, int] | None = None  # default: 512 wide, the display's aspect
     seed: int = 0
@@ -93,14 +94,11 @@ def write_png(path: Path, img: np.ndarray) -> None:
 
 
 def similarity(img: np.ndarray, ref: np.ndarray) -> tuple[float, float]:
-    """(SSIM, PSNR dB) of ``img`` against ``ref`` on luminance, data range of ``ref``."""
-    from skimage.metrics import peak_signal_noise_ratio, structural_similarity
+    """(SSIM, PSNR dB) of ``img`` against ``ref``: the convention of
+    :mod:`lfsim.metrics.image` (the one ``lfsim compare`` reports)."""
+    from ..metrics.image import psnr, ssim
 
-    w = np.array([0.2126, 0.7152, 0.0722])
-    a, b = np.asarray(img) @ w, np.asarray(ref) @ w
-    rng = float(max(b.max() - b.min(), 1e-12))
-    return (float(structural_similarity(a, b, data_range=rng)),
-            float(peak_signal_noise_ratio(b, a, data_range=rng)))
+    return float(ssim(ref, img)), float(psnr(ref, img))
 
 
 def load_scene(scene_dict: dict):
