@@ -286,9 +286,7 @@ def cmd_analyze(args) -> int:
 def cmd_optimize(args) -> int:
     from pathlib import Path
 
-    from .analysis.ini_analysis import analyze
-    from .fileio import write_json
-    from .optimize.workflow import compare, optimize
+    from .optimize.workflow import optimize
 
     design = _load_design(args)
     if design.ini is None:
@@ -305,19 +303,12 @@ def cmd_optimize(args) -> int:
             raise InputError(f"--stages = {args.stages!r}: expected a comma-separated subset of {', '.join(STAGES)}")
     if args.iterations is not None and args.iterations < 1:
         raise InputError(f"--iterations = {args.iterations}: must be >= 1")
+    stride = None if args.no_analyze else _int_pair(args.analyze_stride, "--analyze-stride")
     quiet = args.json or not sys.stderr.isatty()
     log = (lambda *a, **k: None) if args.json else (lambda msg: print(msg, file=sys.stderr))
     doc = optimize(design, args.out, stages=stages, iterations=args.iterations, solver=args.solver,
-                   resume=args.resume, progress=not quiet, log=log)
+                   resume=args.resume, progress=not quiet, log=log, analyze_stride=stride)
     out = Path(args.out)
-    if not args.no_analyze:
-        stride = _int_pair(args.analyze_stride, "--analyze-stride")
-        before = analyze(design, out / "before", stride=stride, plots=True)
-        after = analyze(load(out / doc["optimized_design"]), out / "after", stride=stride, plots=True)
-        doc["before_after"] = compare(before, after, out / "before_after.png")
-        doc["before_after_stride"] = list(stride)
-        doc["plots"].append("before_after.png")
-        write_json(out / "history.json", doc)
     if args.json:
         print(_dump(doc))
         return 0
@@ -368,8 +359,6 @@ def _view_of(args, verb: str):
 def cmd_focal_stack(args) -> int:
     from pathlib import Path
 
-    from .analysis import focus_cues
-    from .fileio import write_json
     from .render.focal_stack import FocalStackSpec, focal_stack
 
     content, design_path, design, focus, cdp, pupil = _view_of(args, "lfsim focal-stack")
@@ -383,13 +372,7 @@ def cmd_focal_stack(args) -> int:
                           mla_cells=args.mla_cells, optics=args.optics, tessellation=args.tessellation)
     quiet = args.json or not sys.stderr.isatty()
     log = (lambda *a, **k: None) if args.json else (lambda msg: print(msg, file=sys.stderr))
-    doc, stack = focal_stack(design, content, args.out, spec, progress=not quiet, log=log)
-    cues = focus_cues.analyze(stack, stack["content_scene"], args.out)
-    doc["focus_cues"] = {"json": "focus_cues.json", "png": cues["plot"],
-                         "sharpest": [{k: r[k] for k in ("kind", "focus_mm", "focus_diopters", "sharpest_diopters",
-                                                         "offset_diopters", "sharpness_peak", "sharpness_far_mean")}
-                                      for r in cues["results"]]}
-    write_json(Path(args.out) / "index.json", doc)
+    doc, _ = focal_stack(design, content, args.out, spec, progress=not quiet, log=log)
     if args.json:
         print(_dump(doc))
         return 0
@@ -543,7 +526,7 @@ def cmd_sweep(args) -> int:
             raise InputError(f"--spp = {args.spp}: must be >= 1")
         spec = FocalStackSpec(focus_mm=list(view.focus_mm), cdp_mm=view.cdp_mm,
                               pupil_diameter_mm=view.pupil_diameter_mm, spp=args.spp,
-                              resolution=_int_pair(args.resolution, "--resolution"))
+                              resolution=_int_pair(args.resolution, "--resolution"), focus_cues=False)
     doc = run_sweep(design, args.out, axes, fixed, stride=stride, reference=args.reference, render=args.render,
                     render_spec=spec, content=content, scheduler=sched, workers=workers, serial=serial,
                     batch=args.batch, progress=sys.stderr.isatty() and not args.json)

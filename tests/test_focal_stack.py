@@ -102,3 +102,23 @@ def test_view_defaults_have_one_owner(scenes, tmp_path, capsys):
     assert main(["focal-stack", str(scenes / "ini_ideal.toml"), "--content", str(bare), "--focus-mm", "1000",
                  "--spp", "1", "--resolution", "96,56", "--out", str(out), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["cdp_mm"] == VIEW_DEFAULTS.cdp_mm
+
+
+def test_python_api_writes_what_the_verb_writes_even_at_a_small_resolution(scenes, tmp_path):
+    """render.focal_stack() runs the focus-cue analysis and writes index.json with it,
+    as `lfsim focal-stack` does; a 48x27 image (fewer columns than 24 bands of 3)
+    gets fewer bands instead of failing."""
+    import lfsim
+    from lfsim.design.content import load_content
+    from lfsim.render.focal_stack import FocalStackSpec, focal_stack
+
+    design = lfsim.load(scenes / "ini_ideal.toml")
+    content = load_content(scenes / "fig9_wall.toml")
+    out = tmp_path / "api"
+    doc, _ = focal_stack(design, content, out, FocalStackSpec(focus_mm=[1000.0], spp=1, resolution=(48, 27)),
+                         log=lambda m: None)
+    on_disk = json.loads((out / "index.json").read_text())
+    assert on_disk == json.loads(json.dumps(doc)) and "focus_cues" in on_disk
+    cues = json.loads((out / "focus_cues.json").read_text())
+    assert (out / "focus_cues.png").stat().st_size > 0
+    assert 1 <= cues["bands"] and all(r["sharpest_diopters"] is not None for r in cues["results"])

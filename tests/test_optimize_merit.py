@@ -148,3 +148,21 @@ def test_grid_weights_estimate_the_mean_over_every_lenslet(freeform_merit):
         f = 0.3 * subs.m + 0.7 * subs.n  # exact for a linear field when both ends are sampled
         full = 0.3 * (arr.m - 1) / 2 + 0.7 * (arr.n - 1) / 2
         assert (w @ f) / w.sum() == pytest.approx(full, rel=1e-12), stride
+
+
+def test_optimize_api_writes_the_before_after_analysis(scenes, tmp_path, capsys):
+    """optimize.workflow.optimize() writes what `lfsim optimize` writes, the before/after
+    analysis included; a bad --analyze-stride is refused before any work or output."""
+    from lfsim.optimize.workflow import optimize
+
+    d = _design(scenes, tmp_path, ["S3.x2y0"], stages=["integrated"], iterations=1)
+    out = tmp_path / "o"
+    doc = optimize(d, out, log=lambda m: None, analyze_stride=(16, 8))
+    assert doc["before_after_stride"] == [16, 8] and "before_after.png" in doc["plots"]
+    assert json.loads((out / "history.json").read_text())["before_after"] == json.loads(
+        json.dumps(doc["before_after"]))
+    for side in ("before", "after"):
+        assert json.loads((out / side / "metrics.json").read_text())["summary"]["subsystems_evaluated"] > 0
+    assert main(["optimize", str(scenes / "ini_freeform.toml"), "--out", str(tmp_path / "bad"),
+                 "--analyze-stride", "0,0"]) == 2
+    assert "--analyze-stride" in capsys.readouterr().err and not (tmp_path / "bad").exists()

@@ -107,3 +107,26 @@ def test_display_gap_is_a_parameter_of_the_design_vector(scenes, capsys):
     assert d.system.object_distance == 4.75 and d.raw["object"]["distance"] == 4.75
     assert nominal_value(d.raw, d.system, "object.distance") == 4.75
     assert "object.distance" not in lfsim.load(scenes / "cooke_triplet.toml").parameter_names()
+
+
+@pytest.mark.parametrize("design,key,value", [
+    ("cooke_triplet", "surfaces[2].thickness", 1.2),   # README: a dotted path into [[surfaces]]
+    ("ini_freeform", "ini.analysis.fields", 5),        # README: a dotted path into [ini]
+    ("ini_freeform", "S1.tilt_x", 0.1),                # README: the analyze example
+    ("ini_coaxial", "L1.curvature", 0.6),
+    ("ini_ideal", "MLA.power", 0.3),
+    ("ini_freeform", "S3.x2y2", 0.03),
+    ("ini_ideal", "TL.power", 0.002),
+    ("ini_freeform", "mla.pitch_x", 1.01),
+])
+def test_every_readme_override_path_is_taken(scenes, design, key, value):
+    """Each kind of --set key the README documents sets what it names."""
+    path = scenes / f"{design}.toml"
+    d = load_with_overrides(path, {key: value})
+    table = {n: v for n, v, _ in d.system.parameter_table()}
+    if key in table:
+        assert table[key] == pytest.approx(value, rel=1e-12)
+    elif key.startswith("surfaces["):
+        assert d.system.surfaces[int(key[9:key.index("]")])].thickness == value
+    else:
+        assert d.raw["ini"]["analysis"]["fields"] == value and d.ini.fields == value

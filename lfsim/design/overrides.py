@@ -88,7 +88,7 @@ def _set_path(raw: dict, key: str, value: float) -> bool:
         parts = _path_parts(key)
     except KeyError:
         return False
-    if len(parts) < 2 or not isinstance(raw.get(parts[0]), dict):
+    if len(parts) < 2 or not isinstance(raw.get(parts[0]), (dict, list)):  # [table] or [[array of tables]]
         return False
     node = raw
     for i, p in enumerate(parts[:-1]):

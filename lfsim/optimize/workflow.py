@@ -58,13 +58,21 @@ def _summary(details: dict) -> dict:
 
 
 def optimize(design: Design, out_dir, stages=None, iterations: int | None = None, solver: str | None = None,
-             resume: bool = False, progress: bool = False, log=print) -> dict:
+             resume: bool = False, progress: bool = False, log=print, analyze_stride=(4, 2)) -> dict:
     """Run the stages; write the optimized design, the merit history and plots.
 
     Returns the ``history.json`` document. ``OUT/<stem>_optimized.toml`` is the
     result (the input file's table with the variables' values, and the merit
-    figures in its header).
+    figures in its header). With ``analyze_stride`` (lenslet stride, default
+    (4, 2); None: skip), the start and the result are analysed as by
+    ``lfsim analyze`` into ``OUT/before`` and ``OUT/after``, compared in
+    ``before_after.png`` and in the document's ``before_after`` — what
+    ``lfsim optimize`` writes.
     """
+    if analyze_stride is not None:
+        analyze_stride = tuple(int(v) for v in analyze_stride)
+        if len(analyze_stride) != 2 or min(analyze_stride) < 1:
+            raise ValueError(f"analyze_stride = {analyze_stride!r}: expected two integers >= 1")
     from ..design.writer import write_design
 
     spec = design.optimize
@@ -148,6 +156,15 @@ def optimize(design: Design, out_dir, stages=None, iterations: int | None = None
     doc["optimized_design"] = path.name
     plot_history(doc, out / "merit_history.png")
     doc["plots"] = ["merit_history.png"]
+    if analyze_stride is not None:
+        from ..analysis.ini_analysis import analyze
+        from ..design import load
+
+        before = analyze(design, out / "before", stride=analyze_stride, plots=True)
+        after = analyze(load(path), out / "after", stride=analyze_stride, plots=True)
+        doc["before_after"] = compare(before, after, out / "before_after.png")
+        doc["before_after_stride"] = list(analyze_stride)
+        doc["plots"].append("before_after.png")
     write_json(out / "history.json", doc)
     return doc
 

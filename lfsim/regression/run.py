@@ -183,7 +183,7 @@ def render(design, opts: dict, seeds, log=None) -> Rendered:
     for seed in seeds:
         spec = FocalStackSpec(focus_mm=list(focus), cdp_mm=cdp, pupil_diameter_mm=pupil, spp=opts["spp"],
                               resolution=res, seed=int(seed), eye_model=opts["eye"], mla_cells=opts["mla_cells"],
-                              optics=opts["optics"], tessellation=opts["tessellation"])
+                              optics=opts["optics"], tessellation=opts["tessellation"], focus_cues=False)
         with tempfile.TemporaryDirectory(prefix="lfsim-regress-") as tmp:
             doc, stack = focal_stack(design, content, tmp, spec, log=log or (lambda m: None))
         docs.append(doc)

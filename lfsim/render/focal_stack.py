@@ -53,6 +53,7 @@ class FocalStackSpec:
     mla_cells: str = "per_surface"  # "fixed": baffled lenslet cells (an ideal aperture array)
     optics: str = "analytic"  # "mesh": Mitsuba meshes of the optics, path-traced
     tessellation: float = 1.0  # mesh density, × lfsim.render.meshes defaults
+    focus_cues: bool = True  # the focus-cue analysis (focus_cues.json/png, index.json's "focus_cues")
 
 
 def _srgb8(img: np.ndarray) -> np.ndarray:
@@ -123,7 +124,10 @@ def render(scene_dict, sensor: dict | None = None) -> tuple[np.ndarray, float]:
 
 def focal_stack(design, content, out_dir, spec: FocalStackSpec | None = None, progress: bool = False,
                 log=print) -> tuple[dict, dict]:
-    """Render a focal stack; writes ``out_dir``.
+    """Render a focal stack and analyse its focus cues; writes ``out_dir`` (what
+    ``lfsim focal-stack`` writes: the EXRs and PNGs, the contact sheet,
+    ``focus_cues.json``/``.png`` unless ``spec.focus_cues`` is off, and
+    ``index.json`` last).
 
     Returns ``(index, stack)``: the ``index.json`` document and the images in
     memory, ``stack = {"fov_deg", "images": {(kind, focus_mm): (H, W, 3)},
@@ -259,10 +263,19 @@ def focal_stack(design, content, out_dir, spec: FocalStackSpec | None = None, pr
            "images": images,
            "reference": {"exr": "reference_pinhole.exr", "png": "reference_pinhole.png",
                          "pupil_diameter_mm": 0.01},
-           "contact_sheet": sheet, "total_s": round(time.perf_counter() - t_all, 3)}
-    write_json(out / "index.json", doc)
+           "contact_sheet": sheet}
     stack = {"fov_deg": (fx, fy), "reference": reference, "content_scene": content_scene,
              "images": {(k, f): v for f, pair in by_focus.items() for k, v in pair.items()}}
+    if spec.focus_cues:
+        from .focus_cues import analyze
+
+        cues = analyze(stack, content_scene, out)
+        keep = ("kind", "focus_mm", "focus_diopters", "sharpest_diopters", "offset_diopters", "sharpness_peak",
+                "sharpness_far_mean")
+        doc["focus_cues"] = {"json": "focus_cues.json", "png": cues["plot"],
+                             "sharpest": [{k: r[k] for k in keep} for r in cues["results"]]}
+    doc["total_s"] = round(time.perf_counter() - t_all, 3)
+    write_json(out / "index.json", doc)
     return doc, stack
 
 

@@ -25,7 +25,7 @@ LUMA = np.array([0.2126, 0.7152, 0.0722])
 def column_depths(content_scene, fov_deg, width: int, height: int, rows: int = 9) -> np.ndarray:
     """Distance (mm, along the line of sight −z) of the content seen in each image column
     (median over ``rows`` rows across the image; NaN where nothing is hit)."""
-    from ..render import mitsuba
+    from . import mitsuba
 
     mi = mitsuba()
     fx, fy = (math.radians(v) for v in fov_deg)
@@ -51,12 +51,21 @@ def _bandpass(img: np.ndarray) -> np.ndarray:
     return difference_of_gaussians(np.asarray(img, dtype=np.float64) @ LUMA, 1.0, 2.5)
 
 
+def _bands(bands: int, width: int) -> int:
+    """Bands of at least 3 columns each (at most ``bands``)."""
+    return max(1, min(int(bands), width // 3))
+
+
 def sharpness_profile(img: np.ndarray, reference: np.ndarray, depth_mm: np.ndarray, bands: int = 24,
                       margin: int = 4):
-    """Per band of columns: (depth in diopters, sharpness ratio). Bands without content are dropped."""
+    """Per band of columns: (depth in diopters, sharpness ratio). Bands without content are
+    dropped; a narrow image gets fewer bands (each at least 3 columns wide), a short one a
+    smaller row margin."""
     a, b = _bandpass(img), _bandpass(reference)
     H, W = a.shape
+    margin = min(margin, max(0, (H - 1) // 2))
     a, b = a[margin:H - margin], b[margin:H - margin]
+    bands = _bands(bands, W)
     edges = np.linspace(0, W, bands + 1).astype(int)
     D, S = [], []
     for lo, hi in zip(edges[:-1], edges[1:]):
@@ -72,20 +81,25 @@ def sharpness_profile(img: np.ndarray, reference: np.ndarray, depth_mm: np.ndarr
     return np.array(D), np.array(S)
 
 
-def peak_diopters(D: np.ndarray, S: np.ndarray) -> float:
-    """Depth (D) of the sharpest band, refined by a parabola through it and its neighbours."""
+def peak_diopters(D: np.ndarray, S: np.ndarray) -> float | None:
+    """Depth (D) of the sharpest band, refined by a parabola through it and its neighbours;
+    None when no band has content."""
+    if len(S) == 0:
+        return None
     order = np.argsort(D)
     D, S = D[order], S[order]
     if len(S) >= 3:
         S = np.convolve(np.pad(S, 1, mode="edge"), np.ones(3) / 3.0, mode="valid")
     i = int(np.argmax(S))
     if 0 < i < len(D) - 1:
-        x, y = D[i - 1:i + 2], S[i - 1:i + 2]
-        c = np.polyfit(x, y, 2)
-        if c[0] < 0:
-            v = -c[1] / (2 * c[0])
-            if x[0] <= v <= x[-1]:
-                return float(v)
+        (x0, x1, x2), (y0, y1, y2) = D[i - 1:i + 2], S[i - 1:i + 2]
+        if x0 < x1 < x2:  # the parabola through the three points, in closed form
+            a = ((y2 - y1) / (x2 - x1) - (y1 - y0) / (x1 - x0)) / (x2 - x0)
+            if a < 0:
+                b = (y1 - y0) / (x1 - x0) - a * (x0 + x1)
+                v = -b / (2.0 * a)
+                if x0 <= v <= x2:
+                    return float(v)
     return float(D[i])
 
 
@@ -99,6 +113,7 @@ def analyze(stack: dict, content_scene, out_dir=None, bands: int = 24) -> dict:
     """
     ref = stack["reference"]
     H, W = ref.shape[:2]
+    bands = _bands(bands, W)
     depth = column_depths(content_scene, stack["fov_deg"], W, H)
     rows = []
     for (kind, f), img in sorted(stack["images"].items(), key=lambda kv: (kv[0][0], kv[0][1])):
@@ -107,12 +122,13 @@ def analyze(stack: dict, content_scene, out_dir=None, bands: int = 24) -> dict:
         focus_D = 1000.0 / f
         far = np.abs(D - focus_D) > 0.5
         rows.append({"kind": kind, "focus_mm": float(f), "focus_diopters": focus_D,
-                     "sharpest_diopters": peak, "offset_diopters": peak - focus_D,
-                     "sharpness_peak": float(np.max(S)),
+                     "sharpest_diopters": peak, "offset_diopters": None if peak is None else peak - focus_D,
+                     "sharpness_peak": float(np.max(S)) if len(S) else None,
                      "sharpness_far_mean": float(np.mean(S[far])) if np.any(far) else None,
                      "profile_diopters": [float(v) for v in D], "profile_sharpness": [float(v) for v in S]})
-    doc = {"bands": bands, "depth_range_diopters": [float(np.nanmin(1000 / depth)), float(np.nanmax(1000 / depth))],
-           "results": rows}
+    seen = np.isfinite(depth)
+    span = [float(np.min(1000 / depth[seen])), float(np.max(1000 / depth[seen]))] if seen.any() else None
+    doc = {"bands": bands, "depth_range_diopters": span, "results": rows}
     if out_dir is not None:
         from pathlib import Path
 
@@ -142,7 +158,8 @@ def plot(doc: dict, path) -> str:
             ax.plot(r["profile_diopters"], r["profile_sharpness"], "o-", ms=3, color=c,
                     label=f"focus {r['focus_mm']:g} mm ({r['focus_diopters']:.2f} D)")
             ax.axvline(r["focus_diopters"], color=c, ls=":", lw=1)
-            ax.axvline(r["sharpest_diopters"], color=c, ls="--", lw=1)
+            if r["sharpest_diopters"] is not None:
+                ax.axvline(r["sharpest_diopters"], color=c, ls="--", lw=1)
         ax.set_xlabel("depth of the content along the wall (D)")
         ax.set_ylabel("sharpness / pinhole view")
         ax.set_title("through the display" if kind == "display" else "natural view")
