@@ -118,6 +118,11 @@ def ini_first_order(p_mla: float, g: float, f_ep: float, z_xp: float, m: int, n:
     at g = f_MLA). The eyepiece side by ``z_ic``, or ``d_mla_ep`` (= l + z_IC), or
     ``cdp_diopters`` (then z_IC follows from imaging the intermediate CDP to the
     virtual CDP at z_CDP = 1000/D mm in front of the viewing window).
+
+    References
+    ----------
+    H. Huang and H. Hua, *Opt. Express* 27(18) (2019): Eqs. (1)–(10), the
+    first-order model of an InI-HMD (Eq. 3 sign-corrected, see the module).
     """
     _positive("p_mla", p_mla)
     _positive("g", g)

@@ -12,6 +12,11 @@ def gd_deg(r_real: np.ndarray, r_paraxial: np.ndarray) -> np.ndarray:
     ``x'_c = −z_CDP·r`` (``r`` its retinal tangent, see :mod:`.spot`) and the
     paraxial one at ``x_c = −z_CDP·r_par`` (Eq. 9), so
     ``|x_c − x'_c|/z_CDP = |r − r_par|``, which stays finite at 0 D.
+
+    References
+    ----------
+    H. Huang and H. Hua, *Opt. Express* 27(18) (2019): Eq. (11), the global
+    distortion of the virtual elemental images on the CDP.
     """
     d = np.asarray(r_real) - np.asarray(r_paraxial)
     return np.degrees(np.arctan(np.hypot(d[..., 0], d[..., 1])))

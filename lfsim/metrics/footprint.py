@@ -11,6 +11,11 @@ def pa(real: np.ndarray, paraxial: np.ndarray, d_v: float) -> np.ndarray:
     ``real``, ``paraxial``: (..., 4, 2) viewing-window positions of the four
     marginal rays (the stop's edge midpoints) of one field; ``d_v`` the
     paraxial footprint diameter (Eq. 5), so √2·d_v is the footprint's diagonal.
+
+    References
+    ----------
+    H. Huang and H. Hua, *Opt. Express* 27(18) (2019): Eq. (12), the pupil
+    aberration of a sub-system's footprint on the viewing window.
     """
     dev = np.hypot(*np.moveaxis(np.asarray(real) - np.asarray(paraxial), -1, 0))
     return np.mean(dev, axis=-1) / (np.sqrt(2.0) * d_v)

@@ -25,6 +25,12 @@ def geometric_mtf(offsets: np.ndarray, weights: np.ndarray, ok: np.ndarray, freq
     so the kernel compiles once): ``|Σ w cos φ − i Σ w sin φ|`` with
     ``φ = 2π ν δ``. A full-resolution analysis evaluates ~10⁸ phases, which
     numpy's complex ``exp`` took seconds for.
+
+    References
+    ----------
+    W. J. Smith, *Modern Optical Engineering*: the geometric MTF as the
+    Fourier transform of the geometric line spread. H. Huang and H. Hua,
+    *Opt. Express* 27(18) (2019) for its use on InI sub-systems.
     """
     import drjit as dr
 
@@ -142,6 +148,13 @@ def diffraction_mtf(rho: np.ndarray, pupil: np.ndarray, opd_mm: np.ndarray, ok: 
     ``Δρ = A⁻¹·λν·e_a`` of the autocorrelation, read by bilinear interpolation.
     Returns (..., K, 2) like :func:`geometric_mtf`. A diffraction-limited
     square pupil of width w gives ``1 − ν λ / w`` exactly.
+
+    References
+    ----------
+    H. Huang and H. Hua, *Opt. Express* 27(18) (2019): the MTF of each
+    sub-system and its contrast at the display's Nyquist frequency, the design
+    method's image-quality targets. J. W. Goodman, *Introduction to Fourier
+    Optics* (the OTF as the normalized autocorrelation of the pupil function).
     """
     n = int(round(np.sqrt(len(rho))))
     lead = opd_mm.shape[:-1]

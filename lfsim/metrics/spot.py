@@ -53,6 +53,12 @@ def rms_spot(r: np.ndarray, weights: np.ndarray, ok: np.ndarray):
     failed rays (their weight is dropped and the rest renormalized).
     Returns ``(rms_rad, centroid_tan, offsets_rad)``; ``rms`` is NaN-free: a
     bundle with no ray left gives 0 with ``ok`` all false.
+
+    References
+    ----------
+    H. Huang and H. Hua, *Opt. Express* 27(18) (2019): the RMS spot of each
+    sub-system's ray bundle in visual angle, one of the design method's
+    image-quality targets.
     """
     w = np.where(ok, weights, 0.0)
     wsum = np.sum(w, axis=-1, keepdims=True)
