@@ -28,9 +28,9 @@ def geometric_mtf(offsets: np.ndarray, weights: np.ndarray, ok: np.ndarray, freq
 
     References
     ----------
-    W. J. Smith, *Modern Optical Engineering*: the geometric MTF as the
-    Fourier transform of the geometric line spread. H. Huang and H. Hua,
-    *Opt. Express* 27(18) (2019) for its use on InI sub-systems.
+    H. Huang and H. Hua, *Opt. Express* 27(18) (2019): the MTF of each InI
+    sub-system (here its geometric limit, the Fourier transform of the ray
+    spot).
     """
     import drjit as dr
 
