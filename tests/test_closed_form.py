@@ -189,6 +189,7 @@ def test_missed_and_vignetted_rays_are_flagged_without_nan(make_design):
         [[surfaces]]
         radius = -5.0
         thickness = 5.0
+        virtual = true  # the faces cross inside the 4 mm aperture: deliberate, to test the flags
         [[surfaces]]
         dummy = true
     """)

@@ -101,3 +101,41 @@ def test_material_kinds(make_design):
     assert abs(m.nd - 1.5168) < 1e-12 and abs(m.vd - 64.17) < 1e-9
     d = make_design(GOOD.replace('material = "N-BK7"', "material = 1.49"))
     assert d.surfaces[0].material.index(450.0) == 1.49
+
+
+@pytest.mark.parametrize("thickness", [-8.0, 0.1])
+def test_glass_whose_faces_cross_is_refused(tmp_path, thickness):
+    """A lens with a negative centre thickness, or with faces that cross inside their clear
+    apertures (a negative edge thickness), is refused in one line naming both surfaces, the
+    radial height and the glass thickness there (closed form for two spheres); marking a face
+    ``virtual`` accepts it as deliberate geometry."""
+    R, h = 20.0, 6.0
+    text = f"""
+[system]
+aperture = {{ type = "epd", value = 10.0 }}
+[[surfaces]]
+name = "A"
+radius = {R}
+thickness = {thickness}
+material = "N-BK7"
+semi_diameter = {h}
+[[surfaces]]
+name = "B"
+radius = {-R}
+thickness = 40.0
+semi_diameter = {h}
+[[surfaces]]
+name = "image"
+dummy = true
+"""
+    p = tmp_path / "x.toml"
+    p.write_text(text)
+    with pytest.raises(DesignError) as e:
+        lfsim.load(p)
+    msg = str(e.value)
+    sag = R - math.sqrt(R * R - h * h)
+    edge = thickness - 2.0 * sag  # both faces bulge outwards by `sag` at the rim
+    assert e.value.key == "surfaces[0].thickness" and "'A' and 'B'" in msg and "\n" not in msg
+    assert f"{edge:.6g} mm thick at radial height {h:.4g} mm" in msg and "virtual = true" in msg
+    p.write_text(text.replace('name = "B"', 'name = "B"\nvirtual = true'))
+    assert lfsim.load(p).system.surfaces[1].virtual

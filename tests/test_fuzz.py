@@ -322,12 +322,21 @@ def test_zero_or_negative_pitch_is_rejected(tmp_path, pitch, axis):
 @given(t=st.one_of(st.sampled_from([0.0, -0.0, -1e-12, -3.0, -1e6]), st.floats(-50.0, 0.0)),
        which=st.integers(0, 2))
 def test_zero_or_negative_thickness_traces_finite_or_flags(tmp_path, t, which):
-    """A thickness <= 0 is legal (a zero-thickness element, surfaces after a mirror): rays
+    """A glass element whose faces cross inside their apertures is refused with one line
+    naming its thickness; marked ``virtual`` (deliberate geometry) it is traced, and rays
     are traced to finite values or flagged, never NaN."""
     data = copy.deepcopy(BASES["lens"])
     data["surfaces"][which]["thickness"] = t
     p = tmp_path / "t.toml"
     p.write_text(to_toml(data))
+    if which == 0:  # the N-BK7 element (R 20 / −20): a thickness <= 0 crosses at the rim
+        # (the F2 element's back face is tilted: pairs off one axis are not checked)
+        with pytest.raises(DesignError) as e:
+            lfsim.load(p)
+        assert e.value.key == f"surfaces[{which}].thickness" and "cross" in str(e.value)
+        assert "virtual = true" in str(e.value) and "\n" not in str(e.value)
+        data["surfaces"][which + 1]["virtual"] = True
+        p.write_text(to_toml(data))
     design = lfsim.load(p)
     o, d = _probe_rays(design)
     for prec in ("float64", "float32"):

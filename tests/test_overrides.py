@@ -15,10 +15,10 @@ def test_parameter_name_writes_the_files_own_words(scenes):
     path = scenes / "cooke_triplet.toml"
     base = lfsim.load(path)
     c0 = dict((n, v) for n, v, _ in base.system.parameter_table())["L1_front.curvature"]
-    d = load_with_overrides(path, {"L1_front.curvature": c0 * 1.01, "L1_front.thickness": 1.25})
+    d = load_with_overrides(path, {"L1_front.curvature": c0 * 1.01, "L1_front.thickness": 3.5})
     table = {n: v for n, v, _ in d.system.parameter_table()}
     assert table["L1_front.curvature"] == pytest.approx(c0 * 1.01, rel=1e-15)
-    assert table["L1_front.thickness"] == 1.25
+    assert table["L1_front.thickness"] == 3.5
     assert d.raw["surfaces"][0]["radius"] == pytest.approx(1 / (c0 * 1.01), rel=1e-15)
     # the first-order focal length moves: the override reaches the traced system
     assert d.first_order().efl != pytest.approx(base.first_order().efl, rel=1e-6)
@@ -59,12 +59,12 @@ def test_unknown_key_names_file_key_value_and_close_matches(scenes):
 
 def test_cli_verbs_take_set(scenes, tmp_path, capsys):
     design = str(scenes / "cooke_triplet.toml")
-    assert main(["params", design, "--set", "L1_front.thickness=1.25", "--json"]) == 0
+    assert main(["params", design, "--set", "L1_front.thickness=3.5", "--json"]) == 0
     rows = {r["name"]: r["value"] for r in json.loads(capsys.readouterr().out)["params"]}
-    assert rows["L1_front.thickness"] == 1.25
+    assert rows["L1_front.thickness"] == 3.5
     assert main(["first-order", design, "--json"]) == 0
     efl0 = json.loads(capsys.readouterr().out)["efl"]
-    assert main(["first-order", design, "--set", "L1_front.thickness=1.25", "--json"]) == 0
+    assert main(["first-order", design, "--set", "L1_front.thickness=3.5", "--json"]) == 0
     efl1 = json.loads(capsys.readouterr().out)["efl"]
     assert np.isfinite(efl1) and efl1 != efl0
     assert main(["first-order", design, "--set", "nope=1"]) == 2

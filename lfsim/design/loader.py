@@ -54,7 +54,7 @@ SURFACE_KEYS = {
     "name", "type", "radius", "curvature", "conic", "asphere", "xy", "norm_radius",
     "thickness", "material", "mirror", "tir", "dummy", "semi_diameter", "aperture",
     "stop", "decenter", "tilt", "return_axis", "global_position", "same_as", "array",
-    "comment", "focal_length",
+    "comment", "focal_length", "virtual",
 }
 SURFACE_TYPES = ("standard", "even_asphere", "xy_polynomial", "coordinate_break", "paraxial")
 TOP_KEYS = {"name", "description", "system", "object", "surfaces", "arrays", "ini", "render", "optimize",
@@ -277,6 +277,7 @@ def _surface(ctx: _Ctx, raw, i: int, names: dict, arrays: dict) -> Surface:
     elif s.semi_diameter is not None:
         s.aperture = Aperture("circular", radius=s.semi_diameter)
     s.stop = ctx.boolean(raw, "stop", path)
+    s.virtual = ctx.boolean(raw, "virtual", path)
 
     # Placement.
     s.decenter = ctx.vector(raw, "decenter", path, 2, (0.0, 0.0))
@@ -443,4 +444,17 @@ def system_from_dict(data: dict, file: str = "<dict>") -> System:
             n = m.index(lam)
             if not (math.isfinite(n) and n > 0):
                 raise ctx.err(key, m.name, f"its index at {lam:g} nm is {n!r}: must be a finite number > 0")
+    _check_crossings(ctx, system)
     return system
+
+
+def _check_crossings(ctx, system: System) -> None:
+    """Refuse a glass element whose surfaces cross inside their clear apertures."""
+    from ..optics.solids import crossings
+
+    for i, j, r, t in crossings(system)[:1]:
+        a, b = system.surfaces[i], system.surfaces[j]
+        raise ctx.err(f"surfaces[{i}].thickness", a.thickness,
+                      f"surfaces {a.name!r} and {b.name!r} cross inside their clear apertures: the glass "
+                      f"between them is {t:.6g} mm thick at radial height {r:.4g} mm (set virtual = true on "
+                      f"one of them if this geometry is deliberate)")

@@ -87,6 +87,7 @@ class Surface:
     same_as: int | None = None  # index of an earlier surface whose frame and shape are reused
     array: str | None = None  # lenslet-array group name
     power: float = 0.0  # ideal-lens power (1/mm) of a "paraxial" surface
+    virtual: bool = False  # deliberate virtual geometry: may cross its neighbours
 
     @property
     def is_plane(self) -> bool:

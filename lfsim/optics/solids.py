@@ -30,12 +30,14 @@ e.g. the central differences of an optimization's Jacobian).
 
 from __future__ import annotations
 
+import math
+
 import drjit as dr
 import numpy as np
 
 from .. import backend
 from .components import components
-from .prescription import System
+from .prescription import Aperture, System
 from .surfaces import intersect, normal, sag
 
 #: Shortest distance counted as a hit (mm): the line's own start point is not one.
@@ -56,15 +58,7 @@ def _faces(system: System, run: list[int]) -> list[int]:
 
 def aperture_grid(system: System, i: int, points: int) -> np.ndarray:
     """(Q, 2) local (x, y) sample points over surface ``i``'s clear aperture."""
-    ap = system.surfaces[i].aperture
-    u = np.linspace(-1.0, 1.0, points)
-    X, Y = np.meshgrid(u, u, indexing="xy")
-    if ap.kind == "circular":
-        keep = np.hypot(X, Y) <= 1.0 + 1e-12
-        xy = np.stack([X[keep], Y[keep]], axis=1) * ap.radius
-    else:
-        xy = np.stack([X.ravel(), Y.ravel()], axis=1) * np.array(ap.half_width)
-    return xy + np.array(ap.decenter)
+    return _grid(system.surfaces[i].aperture, points)
 
 
 def _inside(ap, x, y) -> np.ndarray:
@@ -154,3 +148,88 @@ def prism_thickness(tracer, values, points: int = 9) -> tuple[np.ndarray, list[t
     if not cols:
         return np.zeros((B, 0)), []
     return np.concatenate(cols, axis=1), sampled
+
+
+# ----------------------------------------------------------- crossing surfaces
+#: Glass thinner than this (mm, relative to max(1, |centre thickness|)) counts as crossed.
+CROSSING_TOL = 1e-9
+
+
+def _coaxial_pair(system: System, i: int) -> bool:
+    """Whether surface i + 1 sits on surface i's local axis, ``thickness`` apart."""
+    a, b = system.surfaces[i], system.surfaces[i + 1]
+    if a.same_as is not None or b.same_as is not None or a.global_position is not None:
+        return False
+    if b.global_position is not None or any(b.tilt) or any(b.decenter) or b.interaction == "break":
+        return False
+    # A tilted or decentred surface that returns the axis sends the next one back to the old axis.
+    return not ((any(a.tilt) or any(a.decenter)) and a.return_axis)
+
+
+def crossings(system: System, points: int = 17) -> list[tuple[int, int, float, float]]:
+    """Glass elements whose two surfaces cross: ``(i, i + 1, radial height mm, thickness mm)``.
+
+    For each refracting surface ``i`` into a medium denser than air (index >
+    1.0001 at the primary wavelength) followed on its own axis by surface
+    ``i + 1``, the glass thickness ``t(x, y) = d_i + z_{i+1}(x, y) − z_i(x, y)``
+    (the tracer's sag model, :func:`~lfsim.optics.surfaces.sag`) is sampled on
+    a ``points × points`` grid over the clear apertures both surfaces share (a
+    lenslet array's surfaces: over the lenslet cell; no aperture: the vertex
+    only). Where it is negative the surfaces cross inside their apertures (or
+    the centre thickness itself is negative), which no lens can do; the
+    worst point of each such element is returned. Pairs with a surface marked
+    ``virtual``, and pairs not on one axis (tilted, decentred or globally
+    placed), are not checked.
+    """
+    from .vector import DesignVector
+
+    vec = DesignVector(system)
+    get = vec.numpy_getter(vec.values())
+    out = []
+    surfs = system.surfaces
+    for i in range(len(surfs) - 1):
+        a, b = surfs[i], surfs[i + 1]
+        if a.interaction != "refract" or b.interaction == "break" or a.virtual or b.virtual:
+            continue
+        if a.material.index(system.primary_wavelength_nm) <= 1.0001 or not _coaxial_pair(system, i):
+            continue
+        if (a.array is None) != (b.array is None) or a.array != b.array:
+            continue
+        aps = [s.aperture for s in (a, b) if s.aperture is not None]
+        if a.array is not None and not aps:
+            arr = system.arrays[a.array]
+            aps = [Aperture("rectangular", half_width=(0.5 * arr.pitch[0], 0.5 * arr.pitch[1]))]
+        if aps:
+            xy = _grid(aps[0], points)
+            keep = np.ones(len(xy), bool)
+            for ap in aps[1:]:
+                keep &= _inside(ap, xy[:, 0], xy[:, 1])
+            xy = np.vstack([xy[keep], [[0.0, 0.0]]])
+        else:
+            xy = np.zeros((1, 2))
+        sa, sb = vec.shape(i, get), vec.shape(i + 1, get)
+        d = float(get(f"{a.name}.thickness"))
+        worst = None
+        for x, y in xy:
+            za, _, _, ina = sag(float(x), float(y), sa)
+            zb, _, _, inb = sag(float(x), float(y), sb)
+            if not (ina and inb):
+                continue
+            t = d + zb - za
+            if worst is None or t < worst[1]:
+                worst = (math.hypot(x, y), t)
+        if worst is not None and worst[1] < -CROSSING_TOL * max(1.0, abs(d)):
+            out.append((i, i + 1, worst[0], worst[1]))
+    return out
+
+
+def _grid(ap, points: int) -> np.ndarray:
+    """``points × points`` samples over a clear aperture (boundary included)."""
+    u = np.linspace(-1.0, 1.0, points)
+    X, Y = np.meshgrid(u, u, indexing="xy")
+    if ap.kind == "circular":
+        keep = np.hypot(X, Y) <= 1.0 + 1e-12
+        xy = np.stack([X[keep], Y[keep]], axis=1) * ap.radius
+    else:
+        xy = np.stack([X.ravel(), Y.ravel()], axis=1) * np.array(ap.half_width)
+    return xy + np.array(ap.decenter)
