@@ -107,6 +107,9 @@ def test_display_gap_is_a_parameter_of_the_design_vector(scenes, capsys):
     assert d.system.object_distance == 4.75 and d.raw["object"]["distance"] == 4.75
     assert nominal_value(d.raw, d.system, "object.distance") == 4.75
     assert "object.distance" not in lfsim.load(scenes / "cooke_triplet.toml").parameter_names()
+    with pytest.raises(DesignError) as e:  # refused by the validation, named by the file it came from
+        load_with_overrides(path, {"object.distance": -1.0})
+    assert str(e.value).startswith(f"{path}: object.distance = -1.0")
 
 
 @pytest.mark.parametrize("design,key,value", [
