@@ -11,7 +11,9 @@ import csv
 import io
 import json
 import math
+import os
 import sys
+import tempfile
 
 import numpy as np
 
@@ -231,10 +233,33 @@ def _int_pair(text, flag):
     try:
         a, b = (int(v) for v in text.split(","))
     except ValueError:
-        raise InputError(f"{flag} = {text!r}: expected two integers SX,SY") from None
+        raise InputError(f"{flag} = {text!r}: expected two integers A,B") from None
     if a < 1 or b < 1:
-        raise InputError(f"{flag} = {text!r}: strides must be >= 1")
+        raise InputError(f"{flag} = {text!r}: both values must be >= 1")
     return a, b
+
+
+def _writable(path, flag, folder: bool = False):
+    """Refuse, before any work, an output that cannot be written: ``path`` itself when it
+    exists (a folder for ``folder``), else the nearest existing folder above it."""
+    from pathlib import Path
+
+    p = Path(path)
+    if p.exists():
+        if folder != p.is_dir():
+            raise InputError(f"{flag} = {str(path)!r}: {'not a folder' if folder else 'is a folder'}")
+        target = p
+    else:
+        target = next(q for q in p.absolute().parents if q.exists())
+        if not target.is_dir():
+            raise InputError(f"{flag} = {str(path)!r}: {target} is not a folder")
+    probe_dir = target if target.is_dir() else target.parent
+    try:  # a real probe: permission bits say nothing for root or on special file systems
+        fd, probe = tempfile.mkstemp(prefix=".lfsim-probe-", dir=probe_dir)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        raise InputError(f"{flag} = {str(path)!r}: cannot write in {probe_dir} ({e.strerror})") from None
 
 
 def _float_list(text, flag):
@@ -441,6 +466,7 @@ def cmd_gradcheck(args) -> int:
 def cmd_report_accuracy(args) -> int:
     from .analysis.accuracy_report import report
 
+    _writable(args.out, "--out", folder=True)
     log = (lambda msg: None) if args.json else (lambda msg: print(msg, file=sys.stderr))
     doc = report(args.out, quick=args.quick, log=log)
     if args.json:
@@ -505,7 +531,10 @@ def cmd_sweep(args) -> int:
     from .design.overrides import load_with_overrides
     from .tolerance.sweep import parse_axes, run_sweep
 
-    axes, fixed = parse_axes(args.set)
+    if args.max_points < 1:
+        raise InputError(f"--max-points = {args.max_points}: must be >= 1")
+    _writable(args.out, "--out", folder=True)
+    axes, fixed = parse_axes(args.set, max_points=args.max_points)
     if not axes:
         raise InputError("--set KEY=START:STOP:COUNT: give at least one axis to sweep")
     design = load_with_overrides(args.design)
@@ -558,6 +587,13 @@ def cmd_compare(args) -> int:
     from .analysis.compare import compare_paths, json_safe
 
     limits = {"min_psnr": args.min_psnr, "min_ssim": args.min_ssim, "max_abs": args.max_abs}
+    for flag, v, ok in (("--min-psnr", args.min_psnr, lambda x: not math.isnan(x)),
+                        ("--min-ssim", args.min_ssim, lambda x: -1.0 <= x <= 1.0),
+                        ("--max-abs", args.max_abs, lambda x: x >= 0.0)):
+        if v is not None and not ok(v):
+            raise InputError(f"{flag} = {v!r}: " + {"--min-psnr": "a number of dB (inf allowed)",
+                                                     "--min-ssim": "an SSIM in [-1, 1]",
+                                                     "--max-abs": "a value >= 0"}[flag])
     doc = compare_paths(args.a, args.b, args.out, limits=limits)
     if args.json:
         print(_dump(json_safe(doc)))
@@ -580,6 +616,10 @@ def cmd_regress(args) -> int:
 
     if args.update and args.junit:
         raise InputError("--junit: writes the checks of a comparison; not with --update")
+    if args.junit:
+        _writable(args.junit, "--junit")
+    if args.out:
+        _writable(args.out, "--out", folder=True)
     given = {"content": args.content, "cdp_mm": args.cdp_mm, "pupil_mm": args.pupil_mm, "spp": args.spp,
              "seed": args.seed, "eye": args.eye, "mla_cells": args.mla_cells, "optics": args.optics,
              "tessellation": args.tessellation, "set": args.set,
@@ -794,6 +834,8 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("--set", action="append", metavar="KEY=START:STOP:COUNT|KEY=VALUE",
                     help="an axis of the grid (numpy.linspace) or a fixed override (repeatable)")
     sw.add_argument("--out", required=True, help="output directory (sweep.json, sweep.csv, sweep.png)")
+    sw.add_argument("--max-points", type=int, default=10_000,
+                    help="refuse a grid of more points than this (default 10000; each point is a full analysis)")
     sw.add_argument("--stride", help="lenslet stride SX,SY of the metrics (default from [ini.analysis])")
     sw.add_argument("--reference", choices=("self", "nominal"), default="self",
                     help="GD/PA against each point's own paraxial rays (self) or the unswept design's")

@@ -105,3 +105,51 @@ def test_ini_first_order_verb(capsys):
     assert main(["ini", "--p-mla", "0", "--g", "3.5", "--f-mla", "3", "--z-xp", "25", "--f-ep", "25",
                  "--m", "17", "--n", "9", "--z-ic", "19"]) == 2
     assert "p_mla = 0.0" in capsys.readouterr().err
+
+
+def _blocked(tmp_path):
+    """A path under a regular file: no output can be written there."""
+    f = tmp_path / "a_file"
+    f.write_text("x")
+    return f / "sub"
+
+
+def _fails_fast(capsys, argv, needle):
+    import time
+
+    t0 = time.perf_counter()
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert needle in err and "\n" not in err and "Traceback" not in err, err
+    assert time.perf_counter() - t0 < 60.0  # refused before the work (which takes minutes), not after
+    return err
+
+
+def test_options_are_checked_before_any_work(scenes, tmp_path, capsys):
+    """Unwritable outputs, unbounded sweeps, a NaN limit, an empty --resume folder and a zero
+    resolution are refused with one line and exit 2 before any work, and leave nothing behind."""
+    blocked = _blocked(tmp_path)
+    _fails_fast(capsys, ["report", "accuracy", "--quick", "--out", str(blocked)], "--out")
+    _fails_fast(capsys, ["regress", str(scenes / "ini_ideal.toml"), "--baseline",
+                         str(scenes.parent / "tests/lfsim_baselines/test_ini_ideal_fig9_wall"),
+                         "--junit", str(blocked / "x.xml")], "--junit")
+    sweep_out = tmp_path / "sweep"
+    err = _fails_fast(capsys, ["sweep", str(scenes / "ini_ideal.toml"), "--out", str(sweep_out),
+                               "--set", "mla.pitch_x=0.9:1.1:100000000"], "--max-points")
+    assert "100,000,000 points" in err and not sweep_out.exists()
+    _fails_fast(capsys, ["sweep", str(scenes / "ini_ideal.toml"), "--out", str(blocked),
+                         "--set", "mla.pitch_x=0.9:1.1:3"], "--out")
+    a = tmp_path / "a.exr"
+    from lfsim.render.focal_stack import write_exr
+
+    write_exr(a, np.zeros((4, 4, 3), np.float32), {})
+    for flag, v in (("--min-psnr", "nan"), ("--min-ssim", "1.5"), ("--max-abs", "-1")):
+        _fails_fast(capsys, ["compare", str(a), str(a), flag, v], flag)
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    _fails_fast(capsys, ["tolerance", str(scenes / "ini_freeform_optimized.toml"), "--out", str(empty),
+                         "--resume", "--trials", "2"], "holds no tolerance run")
+    assert not any(empty.iterdir())
+    _fails_fast(capsys, ["focal-stack", "--resolution", "0,0", "--out", str(tmp_path / "fs")],
+                "both values must be >= 1")
+    assert not (tmp_path / "fs").exists()

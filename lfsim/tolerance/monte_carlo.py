@@ -243,6 +243,9 @@ def run_tolerance(design: Design, out_dir, trials: int | None = None, seed: int 
     run_file = out / "run.json"
     sens = RecordStore(out / "sensitivity.jsonl").load()
     mc_store = RecordStore(out / "trials.jsonl").load()
+    if resume and not (run_file.exists() or len(sens) or len(mc_store)):
+        raise RunMismatch(f"{out}: --resume, but the folder holds no tolerance run (no run.json or trial "
+                          "records): drop --resume to start one")
     if run_file.exists() or len(sens) or len(mc_store):
         old = json.loads(run_file.read_text()) if run_file.exists() else {}
         if not resume:

@@ -33,11 +33,20 @@ from ..ini.model import IniModelError
 from . import execute
 from .trial import METRICS, metrics_of
 
+#: Grid points a sweep evaluates unless told otherwise (``--max-points``): each is a full
+#: sub-system analysis of the design (~0.1-1 s), so 10,000 points are hours of work.
+MAX_POINTS = 10_000
 
-def parse_axes(items, flag: str = "--set") -> tuple[dict[str, np.ndarray], dict[str, float]]:
-    """``KEY=START:STOP:COUNT`` items → axes {key: values}; ``KEY=VALUE`` → fixed {key: value}."""
+
+def parse_axes(items, flag: str = "--set", max_points: int | None = MAX_POINTS
+               ) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+    """``KEY=START:STOP:COUNT`` items → axes {key: values}; ``KEY=VALUE`` → fixed {key: value}.
+
+    Refuses (before allocating anything) a grid of more than ``max_points`` points
+    (None: no limit)."""
     axes: dict[str, np.ndarray] = {}
     fixed: dict[str, float] = {}
+    points = 1
     for item in items or ():
         key, text = parse_assignment(item, flag)
         if key in axes or key in fixed:
@@ -53,6 +62,10 @@ def parse_axes(items, flag: str = "--set") -> tuple[dict[str, np.ndarray], dict[
                 raise ValueError(f"{flag} {key} = {text!r}: COUNT must be an integer >= 1") from None
             if count < 1 or not (math.isfinite(start) and math.isfinite(stop)):
                 raise ValueError(f"{flag} {key} = {text!r}: finite START, STOP and an integer COUNT >= 1")
+            points *= count
+            if max_points is not None and points > max_points:
+                raise ValueError(f"{flag} {key} = {text!r}: the grid would have {points:,} points, more than "
+                                 f"--max-points {max_points:,} (each is a full analysis of the design)")
             axes[key] = np.linspace(start, stop, count)
         else:
             fixed[key] = parse_number(text, key, flag)
