@@ -137,7 +137,9 @@ def cmd_first_order(args) -> int:
         for k, v in d.items():
             if k in ("wavelength_nm", "method"):
                 continue
-            print(f"  {k:26s} {v:.10g}" if isinstance(v, float) else f"  {k:26s} {v}")
+            # None: not finite (an afocal system's EFL, an F-number without an entrance pupil)
+            text = _fmt(v, ".10g", fo.UNITS.get(k, "")) if v is None or isinstance(v, float) else str(v)
+            print(f"  {k:26s} {text}")
     return 0
 
 
@@ -150,7 +152,8 @@ def cmd_layout(args) -> int:
         print(_dump(summary))
     else:
         fo = summary["first_order"]
-        print(f"{design.name}: EFL {fo['efl']:.6f} mm, BFL {fo['bfl']:.6f} mm, F/# {fo['fno']:.4f}")
+        print(f"{design.name}: EFL {_fmt(fo['efl'], '.6f', 'mm')}, BFL {_fmt(fo['bfl'], '.6f', 'mm')}, "
+              f"F/# {_fmt(fo['fno'], '.4f')}")
         for row in summary["spots"]:
             rms = "vignetted" if row["rms_um"] is None else f"RMS spot {row['rms_um']:.3f} µm"
             print(f"  field {row['field']:g}: {rms}")
@@ -227,6 +230,11 @@ def cmd_ini(args) -> int:
         for k, v in d.items():
             print(f"  {k:22s} {'inf' if v is None else (f'{v:.10g}' if isinstance(v, float) else v)}")
     return 0
+
+
+def _fmt(v, spec: str, unit: str = "") -> str:
+    """A number with its unit, or "undefined" for a quantity that is not finite (None)."""
+    return "undefined" if v is None else f"{format(v, spec)} {unit}".rstrip()
 
 
 def _int_pair(text, flag):

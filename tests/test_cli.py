@@ -153,3 +153,22 @@ def test_options_are_checked_before_any_work(scenes, tmp_path, capsys):
     _fails_fast(capsys, ["focal-stack", "--resolution", "0,0", "--out", str(tmp_path / "fs")],
                 "both values must be >= 1")
     assert not (tmp_path / "fs").exists()
+
+
+def test_text_output_has_units_and_no_python_values(scenes, tmp_path, capsys):
+    """first-order prints each quantity with its unit, and a design without an entrance
+    pupil (EPD 0, the documented default) reports its F-number as undefined, in
+    first-order and in layout (which used to crash on it after writing its files)."""
+    text = (scenes / "cooke_triplet.toml").read_text()
+    assert 'aperture = { type = "epd", value = 10.0 }' in text
+    p = tmp_path / "epd0.toml"
+    p.write_text(text.replace('aperture = { type = "epd", value = 10.0 }', 'aperture = { type = "epd", value = 0.0 }'))
+    assert main(["first-order", str(scenes / "cooke_triplet.toml")]) == 0
+    out = capsys.readouterr().out
+    assert "efl                        50.02159651 mm" in out and "fno                        5.002159651\n" in out
+    assert main(["first-order", str(p)]) == 0
+    out = capsys.readouterr().out
+    assert "fno                        undefined" in out and "None" not in out
+    assert main(["layout", str(p), "--out", str(tmp_path / "lay")]) == 0
+    out = capsys.readouterr().out
+    assert "F/# undefined" in out and "None" not in out and (tmp_path / "lay" / "summary.json").exists()

@@ -56,6 +56,13 @@ class FirstOrder:
         return {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
                 for k, v in asdict(self).items()}
 
+    #: Unit of each quantity ("" for a pure number).
+    UNITS = {"efl": "mm", "efl_x": "mm", "bfl": "mm", "front_focal_point": "mm", "back_focal_point": "mm",
+             "front_principal_plane": "mm", "back_principal_plane": "mm", "entrance_pupil_position": "mm",
+             "entrance_pupil_diameter": "mm", "exit_pupil_position": "mm", "exit_pupil_diameter": "mm",
+             "paraxial_image_distance": "mm", "magnification": "x", "fno": "", "working_fno": "",
+             "n_object": "", "n_image": "", "wavelength_nm": "nm", "method": ""}
+
 
 def _transfer(t, n):
     return np.array([[1.0, t / n], [0.0, 1.0]])
