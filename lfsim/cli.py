@@ -496,6 +496,19 @@ def _scheduler_args(args):
         raise InputError(f"--scheduler = {sched!r}: expected a dask.distributed address tcp://HOST:PORT, or serial")
     if args.workers is not None and args.workers < 1:
         raise InputError(f"--workers = {args.workers}: must be >= 1")
+    if sched is not None and sched.startswith("tcp://"):
+        # Before any work: a scheduler that does not answer in 5 s is refused now, not after
+        # the design is prepared and Dask's own 30 s connection timeout.
+        import socket
+        from urllib.parse import urlsplit
+
+        try:
+            u = urlsplit(sched)
+            with socket.create_connection((u.hostname, u.port or 8786), timeout=5.0):
+                pass
+        except (OSError, ValueError) as e:
+            raise InputError(f"--scheduler = {sched!r}: no scheduler answers there "
+                             f"({getattr(e, 'strerror', None) or e})") from None
     serial = sched == "serial"
     return (None if serial else sched), args.workers, serial
 

@@ -150,6 +150,9 @@ def test_options_are_checked_before_any_work(scenes, tmp_path, capsys):
     _fails_fast(capsys, ["tolerance", str(scenes / "ini_freeform_optimized.toml"), "--out", str(empty),
                          "--resume", "--trials", "2"], "holds no tolerance run")
     assert not any(empty.iterdir())
+    _fails_fast(capsys, ["tolerance", str(scenes / "ini_freeform_optimized.toml"), "--out", str(tmp_path / "tol"),
+                         "--scheduler", "tcp://127.0.0.1:1", "--trials", "2"], "no scheduler answers")
+    assert not (tmp_path / "tol").exists()
     _fails_fast(capsys, ["focal-stack", "--resolution", "0,0", "--out", str(tmp_path / "fs")],
                 "both values must be >= 1")
     assert not (tmp_path / "fs").exists()
