@@ -105,3 +105,21 @@ def test_bad_input_exits_2_with_one_line(tmp_path, image, capsys, case):
     assert err.startswith("lfsim: error: ") and err.count("\n") == 1 and named in err, err
     assert "Traceback" not in err
     assert not out.exists()  # nothing written
+
+
+def test_png_is_read_as_linear_values(tmp_path):
+    """A PNG (sRGB, 8 bit) of a linear image compares with the image's EXR to the 8-bit
+    quantization (the largest linear step between codes, at the top, is 0.0089)."""
+    from lfsim.analysis.compare import read_image
+    from lfsim.render.focal_stack import write_exr, write_png
+
+    rng = np.random.default_rng(2)
+    img = rng.uniform(0.0, 1.0, (24, 32, 3)).astype(np.float32)
+    write_exr(tmp_path / "a.exr", img, {})
+    write_png(tmp_path / "a.png", img)
+    png, names = read_image(tmp_path / "a.png")
+    assert names == ["R", "G", "B"] and png.shape == img.shape
+    assert np.max(np.abs(png - img)) <= 0.0090
+    assert np.mean(np.abs(png - img)) < 0.002  # rounding, not a gamma error (that would be ~0.1)
+    doc = compare_images(read_image(tmp_path / "a.exr")[0], png)
+    assert doc["psnr"] > 45

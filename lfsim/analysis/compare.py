@@ -29,21 +29,25 @@ class CompareInputError(ValueError):
 
 # ------------------------------------------------------------------ reading
 def read_image(path) -> tuple[np.ndarray, list[str]]:
-    """An EXR as ``(pixels (H, W, C) float64, channel names)``.
+    """An EXR (or a PNG) as ``(pixels (H, W, C) float64, channel names)``.
 
     OpenEXR groups R, G, B (and A) into one ``RGB`` / ``RGBA`` channel; other
-    channels are stacked in name order.
+    channels are stacked in name order. A PNG (8 or 16 bit, sRGB encoded) is
+    decoded to linear values in [0, 1] by Mitsuba's bitmap conversion, so it
+    compares in the same units as a rendered EXR (to its quantization).
 
     Raises
     ------
     CompareInputError
-        The file is missing, is not a readable EXR, or its channels differ in size.
+        The file is missing, is not a readable EXR/PNG, or its channels differ in size.
     """
     import OpenEXR
 
     p = Path(path)
     if not p.is_file():
         raise CompareInputError(f"{p}: no such file")
+    if p.suffix.lower() == ".png":
+        return _read_png(p)
     try:
         with OpenEXR.File(str(p)) as f:
             channels = {k: np.asarray(v.pixels) for k, v in f.channels().items()}
@@ -69,6 +73,24 @@ def read_image(path) -> tuple[np.ndarray, list[str]]:
     if not np.all(np.isfinite(img)):
         raise CompareInputError(f"{p}: non-finite pixel values (NaN or inf)")
     return img, names
+
+
+def _read_png(p: Path) -> tuple[np.ndarray, list[str]]:
+    from ..render import mitsuba
+
+    mi = mitsuba()
+    try:
+        bmp = mi.Bitmap(str(p))
+    except Exception as e:  # Mitsuba raises RuntimeError for anything it cannot read
+        raise CompareInputError(f"{p}: not a readable PNG image ({' '.join(str(e).split())})") from None
+    fmt = bmp.pixel_format()
+    names = {mi.Bitmap.PixelFormat.Y: "Y", mi.Bitmap.PixelFormat.YA: "YA", mi.Bitmap.PixelFormat.RGB: "RGB",
+             mi.Bitmap.PixelFormat.RGBA: "RGBA"}.get(fmt)
+    if names is None:
+        raise CompareInputError(f"{p}: unsupported PNG pixel format {fmt}")
+    lin = bmp.convert(fmt, mi.Struct.Type.Float32, srgb_gamma=False)
+    img = np.array(lin, dtype=np.float64).reshape(bmp.height(), bmp.width(), len(names))
+    return img, list(names)
 
 
 def check_compatible(a: np.ndarray, b: np.ndarray, name_a="A", name_b="B", channels_a=None, channels_b=None):
