@@ -166,3 +166,30 @@ def test_optimize_api_writes_the_before_after_analysis(scenes, tmp_path, capsys)
     assert main(["optimize", str(scenes / "ini_freeform.toml"), "--out", str(tmp_path / "bad"),
                  "--analyze-stride", "0,0"]) == 2
     assert "--analyze-stride" in capsys.readouterr().err and not (tmp_path / "bad").exists()
+
+
+@pytest.mark.parametrize("scene", ["ini_freeform.toml", "ini_coaxial.toml"])
+def test_merit_figures_equal_the_analysis(scenes, tmp_path, scene):
+    """The optimizer minimizes the numbers `lfsim analyze` reports: on the same sub-systems,
+    fields and pupil rule, the merit's GD (Eq. 11), PA (Eq. 12) and RMS spot equal the
+    analysis's to 1e-9 (both come from lfsim.metrics)."""
+    from lfsim.analysis.ini_analysis import evaluate
+    from lfsim.ini.model import IniModel
+    from lfsim.metrics.spot import ARCMIN
+
+    d0 = lfsim.load(scenes / scene)
+    raw = copy.deepcopy(d0.raw)
+    raw["optimize"] = {"variables": [next(n for n in d0.parameter_names() if n.endswith(".curvature"))]}
+    d = Design.from_dict(raw, str(tmp_path / scene))
+    n = d.ini.pupil
+    M = IniMerit(d, d.optimize, stride=(8, 4), fields=3, pupil_nodes=2 * n)  # analyze's "gl2" rule
+    M.evaluate(M.x0, derivatives=False)
+    fig = M.figures
+    res = evaluate(IniModel(d), subs=fig["subs"], refine=0)
+    gd = np.where(res["chief_ok"][:, 0], res["gd"], np.nan)
+    pa = np.where(res["pa_ok"], res["pa"], np.nan)
+    rms = res["rms"] * ARCMIN
+    for name, a, b in (("GD", fig["gd_deg"], gd), ("PA", fig["pa"], pa), ("RMS", fig["rms_spot_arcmin"], rms)):
+        keep = np.isfinite(a) & np.isfinite(b)
+        assert keep.mean() > 0.9, name
+        np.testing.assert_allclose(a[keep], b[keep], rtol=0, atol=1e-9, err_msg=name)

@@ -37,3 +37,27 @@ def local_distortion(r_real: np.ndarray, r_paraxial: np.ndarray, center: int = 0
     num = np.hypot(*np.moveaxis(dr_ - dp, -1, 0))
     den = np.hypot(*np.moveaxis(dp, -1, 0))
     return np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0)
+
+
+def gd_deg_jvp(e: np.ndarray, de: np.ndarray):
+    """:func:`gd_deg` of ``e = r − r_par`` (..., 2) with its derivatives along ``de`` (..., 2, K).
+
+    Returns ``(gd (...,), dgd (..., K), v (..., 2), dv (..., 2, K))``: GD in degrees, its
+    derivative, and the residual vector ``v = gd · e/|e|`` (|v| = GD, smooth at e = 0,
+    where it is ``e`` in degrees) with its derivative, for least squares.
+    """
+    e = np.asarray(e, dtype=np.float64)
+    x = np.hypot(e[..., 0], e[..., 1])
+    deg = 180.0 / np.pi
+    gd = deg * np.arctan(x)
+    small = x < 1e-6
+    xs = np.where(small, 1.0, x)
+    u = np.where(small[..., None], 0.0, e / xs[..., None])
+    dx = np.einsum("...a,...ak->...k", u, de)  # d|e|
+    dgd = deg / (1.0 + x * x)[..., None] * dx
+    # ratio = gd/|e| = deg·atan(x)/x → deg(1 − x²/3) as x → 0; its x-derivative → −2·deg·x/3.
+    ratio = np.where(small, deg * (1.0 - x * x / 3.0), gd / xs)
+    dratio = np.where(small, -2.0 * deg * x / 3.0, (deg / (1.0 + x * x) - ratio) / xs)
+    v = ratio[..., None] * e
+    dv = ratio[..., None, None] * de + e[..., :, None] * (dratio[..., None] * dx)[..., None, :]
+    return gd, dgd, v, dv

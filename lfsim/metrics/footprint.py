@@ -19,3 +19,13 @@ def pa(real: np.ndarray, paraxial: np.ndarray, d_v: float) -> np.ndarray:
     """
     dev = np.hypot(*np.moveaxis(np.asarray(real) - np.asarray(paraxial), -1, 0))
     return np.mean(dev, axis=-1) / (np.sqrt(2.0) * d_v)
+
+
+def pa_jvp(dev: np.ndarray, ddev: np.ndarray):
+    """:func:`pa` from the normalized footprint errors ``dev = (v − v')/(√2·d_v)``
+    (..., 4, 2) and its derivatives along ``ddev`` (..., 4, 2, K): ``(PA (...,), dPA (..., K))``.
+    A marginal ray exactly on its paraxial point contributes no derivative (|·| has none there)."""
+    dev = np.asarray(dev, dtype=np.float64)
+    a = np.hypot(dev[..., 0], dev[..., 1])  # (..., 4)
+    u = np.where((a > 0)[..., None], dev / np.where(a > 0, a, 1.0)[..., None], 0.0)
+    return np.mean(a, axis=-1), np.mean(np.einsum("...ma,...mak->...mk", u, ddev), axis=-2)

@@ -60,7 +60,7 @@ import numpy as np
 from ..design.design import Design
 from ..ini.model import IniModel
 from ..ini.subsystems import field_grid, sample, trace_rays_jacobian
-from ..metrics import pupil
+from ..metrics import distortion, footprint, pupil, spot
 from ..metrics.spot import ARCMIN
 from ..optics.solids import prism_thickness, prisms
 
@@ -363,41 +363,37 @@ class IniMerit:
         lost = (~ok).reshape(-1).astype(np.float64) * LOST
         add("lost", lost, np.zeros((lost.size, K)) if derivatives else None)
 
-        # RMS spot over the Gauss–Legendre pupil, about its weighted centroid.
+        # RMS spot over the Gauss–Legendre pupil: the angular offsets about the spot's
+        # centroid direction of metrics.spot (the figure `lfsim analyze` reports), with
+        # their exact derivatives.
         g = self.sl_gl
         okg = ok[:, :, g]
-        wg = self.w_gl[None, None, :] * okg
-        wsum = np.maximum(wg.sum(-1, keepdims=True), 1e-300)
-        wn = wg / wsum  # (S, F, G)
-        cen = np.sum(wn[..., None] * r[:, :, g], axis=2, keepdims=True)
+        K0 = K if derivatives else 0
+        dr_g = dr_[:, :, g] if derivatives else np.zeros(r[:, :, g].shape + (0,))
+        rms, _, off, doff, wn = spot.rms_spot_jvp(r[:, :, g], dr_g, self.w_gl, okg)
         scale = w.spot * ARCMIN / math.sqrt(S * F)
-        res = np.sqrt(wn)[..., None] * (r[:, :, g] - cen) * scale
-        jac = None
-        if derivatives:
-            dcen = np.sum(wn[..., None, None] * dr_[:, :, g], axis=2, keepdims=True)
-            jac = np.sqrt(wn)[..., None, None] * (dr_[:, :, g] - dcen) * scale
-        add("spot", res, jac)
+        res = np.sqrt(wn)[..., None] * off * scale
+        add("spot", res, np.sqrt(wn)[..., None, None] * doff * scale if derivatives else None)
         if t.spot_axis_max_arcmin is not None:
             # RMS along x and along y of every sub-system and field beyond the limit.
-            dev = r[:, :, g] - cen  # (S, F, G, 2)
-            rms_a = np.sqrt(np.sum(wn[..., None] * dev ** 2, axis=2)) * ARCMIN  # (S, F, 2)
+            rms_a = np.sqrt(np.sum(wn[..., None] * off ** 2, axis=2)) * ARCMIN  # (S, F, 2)
             over = (rms_a > t.spot_axis_max_arcmin) & okg.any(-1)[..., None]
             jac = None
             if derivatives:
-                ddev = dr_[:, :, g] - dcen
-                drms = (np.sum(wn[..., None, None] * dev[..., None] * ddev, axis=2) * ARCMIN ** 2
+                drms = (np.sum(wn[..., None, None] * off[..., None] * doff, axis=2) * ARCMIN ** 2
                         / np.maximum(rms_a, 1e-300)[..., None])
                 jac = np.where(over[..., None], drms, 0.0) * 10.0 * w.spot
             add("spot_axis_max", np.where(over, rms_a - t.spot_axis_max_arcmin, 0.0) * 10.0 * w.spot, jac)
 
-        # GD (Eq. 11) on the centre field's chief ray, against the paraxial chief ray.
+        # GD (Eq. 11, metrics.distortion) on the centre field's chief ray, against the
+        # paraxial chief ray; the residual vector has |v| = GD in degrees.
         par_c, par_m = ref["par_c"], ref["par_m"]
         e = r[:, 0, 0] - par_c[:, 0]  # (S, 2)
-        gd = np.hypot(e[:, 0], e[:, 1]) * DEG
         okc = ok[:, 0, 0]
-        de = dr_[:, 0, 0] - dpar_c[:, 0] if derivatives else None
-        add("gd", np.where(okc[:, None], e, 0.0) * DEG * w.gd / math.sqrt(S),
-            np.where(okc[:, None, None], de, 0.0) * DEG * w.gd / math.sqrt(S) if derivatives else None)
+        de = dr_[:, 0, 0] - dpar_c[:, 0] if derivatives else np.zeros(e.shape + (K0,))
+        gd, dgd, gv, dgv = distortion.gd_deg_jvp(e, de)
+        add("gd", np.where(okc[:, None], gv, 0.0) * w.gd / math.sqrt(S),
+            np.where(okc[:, None, None], dgv, 0.0) * w.gd / math.sqrt(S) if derivatives else None)
         # The mean over the whole display: each sampled lenslet stands for the
         # lenslets nearest to it (all weights equal at stride 1).
         gw = self._grid_weights(model, subs)
@@ -406,16 +402,12 @@ class IniMerit:
             wm = wm / wm.sum()
             mean = float(wm @ gd)
             hit = mean > t.gd_mean_deg
-            jac = None
-            if derivatives:
-                u = e / np.maximum(np.hypot(e[:, 0], e[:, 1]), 1e-300)[:, None]
-                jac = (np.einsum("s,sa,sak->k", wm, u, de) * DEG * 10.0 * w.gd * hit)[None]
+            jac = (wm @ dgd * 10.0 * w.gd * hit)[None] if derivatives else None
             add("gd_mean", np.array([(mean - t.gd_mean_deg) * 10.0 * w.gd if hit else 0.0]), jac)
         if t.gd_max_deg is not None:
             over = okc & (gd > t.gd_max_deg)
-            u = np.where(over[:, None], e / np.maximum(np.hypot(e[:, 0], e[:, 1]), 1e-300)[:, None], 0.0)
             add("gd_max", np.where(over, gd - t.gd_max_deg, 0.0) * 10.0 * w.gd,
-                np.einsum("sa,sak->sk", u, de) * DEG * 10.0 * w.gd if derivatives else None)
+                np.where(over[:, None], dgd, 0.0) * 10.0 * w.gd if derivatives else None)
 
         # PA (Eq. 12): marginal rays' footprint errors.
         d_v = ref["d_v"][:, None, None, None]
@@ -429,12 +421,13 @@ class IniMerit:
         n_m = math.sqrt(S * F * 4)
         add("pa", np.where(okm[..., None], dev, 0.0) * w.pa / n_m,
             np.where(okm[..., None, None], ddev, 0.0) * w.pa / n_m if derivatives else None)
+        # PA (Eq. 12, metrics.footprint) of each field: the mean over its four marginal rays.
+        pa_f, dpa_f = footprint.pa_jvp(dev, ddev if derivatives else np.zeros(dev.shape + (0,)))
+        pa_ok = okm.all(-1)
         if t.pa_max is not None:
-            a = np.hypot(dev[..., 0], dev[..., 1])
-            over = okm & (a > t.pa_max)
-            u = np.where(over[..., None], dev / np.maximum(a, 1e-300)[..., None], 0.0)
-            add("pa_max", np.where(over, a - t.pa_max, 0.0) * 10.0 * w.pa,
-                np.einsum("sfma,sfmak->sfmk", u, ddev) * 10.0 * w.pa if derivatives else None)
+            over = pa_ok & (pa_f > t.pa_max)
+            add("pa_max", np.where(over, pa_f - t.pa_max, 0.0) * 10.0 * w.pa,
+                np.where(over[..., None], dpa_f, 0.0) * 10.0 * w.pa if derivatives else None)
 
         # Local distortion of each EI (chief rays of every field against the paraxial ones).
         if t.local_distortion_max is not None and F > 1:
@@ -599,7 +592,14 @@ class IniMerit:
         r_all = np.concatenate([b[1] for b in blocks])
         J_all = np.concatenate([b[2] for b in blocks]) if derivatives else None
         details = {name: float(np.sum(res ** 2)) for name, res, _ in blocks}
+        #: The last evaluation's figures per sampled sub-system (S) and field (F), as
+        #: `lfsim analyze` defines them (metrics.distortion, .footprint, .spot).
+        self.figures = {"subs": subs, "gd_deg": np.where(okc, gd, np.nan),
+                        "pa": np.where(pa_ok, pa_f, np.nan),
+                        "rms_spot_arcmin": np.where(okg.any(-1), rms * ARCMIN, np.nan)}
         details.update(gd_max_deg=float(np.max(gd[okc])) if okc.any() else None,
+                       pa_max=float(np.max(pa_f[pa_ok])) if pa_ok.any() else None,
+                       rms_spot_mean_arcmin=float(np.mean(rms[okg.any(-1)]) * ARCMIN) if okg.any() else None,
                        gd_mean_deg=float(gw[okc] @ gd[okc] / gw[okc].sum()) if okc.any() else None,
                        rays=int(ok.size), rays_lost=int((~ok).sum()),
                        efl_mm=[float(v) for v in f])
