@@ -11,7 +11,7 @@ from lfsim.analysis.ini_analysis import evaluate
 from lfsim.cli import main
 from lfsim.ini.model import IniModel
 from lfsim.ini.subsystems import sample
-from lfsim.metrics import mtf, pupil, spot
+from lfsim.metrics import distortion, mtf, pupil, spot
 from lfsim.metrics.distortion import gd_deg
 from lfsim.metrics.footprint import pa
 
@@ -224,3 +224,40 @@ def test_gd_and_pa_against_a_nominal_reference(scenes, tmp_path):
     assert doc["summary"]["gd_max_deg"] == pytest.approx(math.degrees(math.atan(delta / f_ep)), rel=1e-9)
     assert main(args + ["--out", str(tmp_path / "b"), "--reference", str(tmp_path / "other.toml")]) == 2
     assert not (tmp_path / "b" / "metrics.json").exists()
+
+
+def test_metric_derivatives_match_central_differences():
+    """gd_deg_jvp, pa_jvp and rms_spot_jvp (the merit's derivatives of Eqs. 11, 12 and the
+    RMS spot) against central differences of the value functions, and their values equal
+    the value functions'."""
+    from lfsim.metrics import footprint
+
+    rng = np.random.default_rng(0)
+    S, R, K, h = 5, 30, 3, 1e-7
+    r = rng.normal(0, 0.01, (S, R, 2)) + np.array([0.2, -0.1])  # a spot 12° off axis
+    dr = rng.normal(0, 1, (S, R, 2, K))
+    w, ok = rng.random(R), rng.random((S, R)) > 0.1
+    rms, drms, off, doff, wn = spot.rms_spot_jvp(r, dr, w, ok)
+    rms0, _, off0 = spot.rms_spot(r, w, ok)
+    np.testing.assert_array_equal(rms, rms0)
+    np.testing.assert_array_equal(off, off0)
+    np.testing.assert_allclose(np.sqrt(np.sum(wn * np.sum(off ** 2, -1), -1)), rms, rtol=1e-14)
+    for k in range(K):
+        p, m = spot.rms_spot(r + h * dr[..., k], w, ok), spot.rms_spot(r - h * dr[..., k], w, ok)
+        np.testing.assert_allclose(drms[..., k], (p[0] - m[0]) / (2 * h), rtol=1e-6, atol=1e-12)
+        np.testing.assert_allclose(doff[..., k], (p[2] - m[2]) / (2 * h), rtol=1e-6, atol=1e-10)
+    e, de = rng.normal(0, 0.02, (S, 2)), rng.normal(0, 1, (S, 2, K))
+    e[0] = 0.0  # the GD residual vector is smooth through e = 0
+    gd, dgd, v, dv = distortion.gd_deg_jvp(e, de)
+    np.testing.assert_array_equal(gd, distortion.gd_deg(e, np.zeros_like(e)))
+    np.testing.assert_allclose(np.hypot(v[:, 0], v[:, 1]), gd, rtol=1e-14, atol=1e-300)
+    for k in range(K):
+        p, m = distortion.gd_deg_jvp(e + h * de[..., k], de), distortion.gd_deg_jvp(e - h * de[..., k], de)
+        np.testing.assert_allclose(dgd[1:, k], (p[0] - m[0])[1:] / (2 * h), rtol=1e-6)
+        np.testing.assert_allclose(dv[..., k], (p[2] - m[2]) / (2 * h), rtol=1e-6, atol=1e-7)
+    dev, ddev = rng.normal(0, 0.1, (S, 4, 2)), rng.normal(0, 1, (S, 4, 2, K))
+    pa, dpa = footprint.pa_jvp(dev, ddev)
+    np.testing.assert_array_equal(pa, footprint.pa(dev, np.zeros_like(dev), 1 / np.sqrt(2.0)))
+    for k in range(K):
+        p, m = footprint.pa_jvp(dev + h * ddev[..., k], ddev)[0], footprint.pa_jvp(dev - h * ddev[..., k], ddev)[0]
+        np.testing.assert_allclose(dpa[:, k], (p - m) / (2 * h), rtol=1e-6)
