@@ -261,3 +261,11 @@ def test_metric_derivatives_match_central_differences():
     for k in range(K):
         p, m = footprint.pa_jvp(dev + h * ddev[..., k], ddev)[0], footprint.pa_jvp(dev - h * ddev[..., k], ddev)[0]
         np.testing.assert_allclose(dpa[:, k], (p - m) / (2 * h), rtol=1e-6)
+    rc, pc = rng.normal(0, 0.05, (S, 9, 2)), rng.normal(0, 0.05, (S, 9, 2))
+    drc, dpc = rng.normal(0, 1, (S, 9, 2, K)), rng.normal(0, 1, (S, 9, 2, K))
+    ld, dld = distortion.local_distortion_jvp(rc, drc, pc, dpc)
+    np.testing.assert_array_equal(ld, distortion.local_distortion(rc, pc))
+    for k in range(K):
+        p = distortion.local_distortion(rc + h * drc[..., k], pc + h * dpc[..., k])
+        m = distortion.local_distortion(rc - h * drc[..., k], pc - h * dpc[..., k])
+        np.testing.assert_allclose(dld[..., k], (p - m) / (2 * h), rtol=1e-6, atol=1e-9)

@@ -61,3 +61,23 @@ def gd_deg_jvp(e: np.ndarray, de: np.ndarray):
     v = ratio[..., None] * e
     dv = ratio[..., None, None] * de + e[..., :, None] * (dratio[..., None] * dx)[..., None, :]
     return gd, dgd, v, dv
+
+
+def local_distortion_jvp(r_real, dr_real, r_paraxial, dr_paraxial, center: int = 0):
+    """:func:`local_distortion` (..., F) and its derivatives (..., F, K) along ``dr_real``
+    and ``dr_paraxial`` (..., F, 2, K). A field exactly on its paraxial shape (or the centre
+    field itself) gets no derivative (|·| has none there)."""
+    r, p = np.asarray(r_real), np.asarray(r_paraxial)
+    vr, vp = r - r[..., center:center + 1, :], p - p[..., center:center + 1, :]
+    dvr = dr_real - dr_real[..., center:center + 1, :, :]
+    dvp = dr_paraxial - dr_paraxial[..., center:center + 1, :, :]
+    dd, ddd = vr - vp, dvr - dvp
+    num, den = np.hypot(dd[..., 0], dd[..., 1]), np.hypot(vp[..., 0], vp[..., 1])
+    good = den > 0
+    dens = np.where(good, den, 1.0)
+    ld = np.where(good, num / dens, 0.0)
+    u = np.where((num > 0)[..., None], dd / np.where(num > 0, num, 1.0)[..., None], 0.0)
+    dnum = np.einsum("...a,...ak->...k", u, ddd)
+    dden = np.einsum("...a,...ak->...k", vp / dens[..., None], dvp)
+    dld = np.where(good[..., None], (dnum - ld[..., None] * dden) / dens[..., None], 0.0)
+    return ld, dld

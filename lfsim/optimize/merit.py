@@ -429,25 +429,15 @@ class IniMerit:
             add("pa_max", np.where(over, pa_f - t.pa_max, 0.0) * 10.0 * w.pa,
                 np.where(over[..., None], dpa_f, 0.0) * 10.0 * w.pa if derivatives else None)
 
-        # Local distortion of each EI (chief rays of every field against the paraxial ones).
+        # Local distortion of each EI (metrics.distortion: chief rays of every field against
+        # the paraxial ones, about the EI's centre field).
         if t.local_distortion_max is not None and F > 1:
-            rc, pc_ = r[:, :, 0], par_c
-            vr, vp = rc - rc[:, :1], pc_ - pc_[:, :1]
-            nv = np.maximum(np.hypot(vp[..., 0], vp[..., 1]), 1e-300)
-            dd = vr - vp
-            ld = np.hypot(dd[..., 0], dd[..., 1]) / nv
-            okd = ok[:, :, 0] & ok[:, :1, 0]
-            over = okd & (ld > t.local_distortion_max)
+            dq = dr_[:, :, 0] if derivatives else np.zeros(r[:, :, 0].shape + (0,))
+            dpc = dpar_c if derivatives else np.zeros(par_c.shape + (0,))
+            ld, dld = distortion.local_distortion_jvp(r[:, :, 0], dq, par_c, dpc)
+            over = ok[:, :, 0] & ok[:, :1, 0] & (ld > t.local_distortion_max)
             over[:, 0] = False
-            u = np.where(over[..., None], dd / np.maximum(np.hypot(dd[..., 0], dd[..., 1]), 1e-300)[..., None], 0.0)
-            jac = None
-            if derivatives:
-                dq = dr_[:, :, 0] - dpar_c
-                dv = dq - dq[:, :1]
-                dvp = dpar_c - dpar_c[:, :1]
-                dnv = np.einsum("sfa,sfak->sfk", vp / nv[..., None], dvp)
-                jac = np.where(over[..., None], (np.einsum("sfa,sfak->sfk", u, dv) - ld[..., None] * dnv)
-                               / nv[..., None], 0.0) * 100.0 * w.distortion
+            jac = np.where(over[..., None], dld, 0.0) * 100.0 * w.distortion if derivatives else None
             add("distortion", np.where(over, ld - t.local_distortion_max, 0.0) * 100.0 * w.distortion, jac)
 
         # Crosstalk: pupil and marginal rays inside (½ − margin) of the cell on every MLA surface.
