@@ -232,6 +232,12 @@ def cmd_ini(args) -> int:
     return 0
 
 
+def _check_seed(seed: int, end: int = 2 ** 32) -> None:
+    """Mitsuba's samplers take 32-bit unsigned seeds."""
+    if not 0 <= seed < end:
+        raise InputError(f"--seed = {seed}: must be an integer in [0, {end})")
+
+
 def _fmt(v, spec: str, unit: str = "") -> str:
     """A number with its unit, or "undefined" for a quantity that is not finite (None)."""
     return "undefined" if v is None else f"{format(v, spec)} {unit}".rstrip()
@@ -397,6 +403,7 @@ def cmd_focal_stack(args) -> int:
     content, design_path, design, focus, cdp, pupil = _view_of(args, "lfsim focal-stack")
     if args.spp < 1:
         raise InputError(f"--spp = {args.spp}: must be >= 1")
+    _check_seed(args.seed)
     if not (math.isfinite(args.tessellation) and args.tessellation > 0):
         raise InputError(f"--tessellation = {args.tessellation!r}: must be > 0")
     res = _int_pair(args.resolution, "--resolution") if args.resolution else None
@@ -436,6 +443,7 @@ def cmd_gradcheck(args) -> int:
         raise InputError(f"--param {','.join(unknown)}: not a parameter of {design_path} "
                          "(lfsim params DESIGN lists them)")
     res = _int_pair(args.resolution, "--resolution")
+    _check_seed(args.seed)
     for flag, v in (("--spp", args.spp), ("--rel-step", args.rel_step), ("--edge-rel-step", args.edge_rel_step),
                     ("--tessellation", args.tessellation),
                     ("--fd-points", args.fd_points)):
@@ -637,6 +645,8 @@ def cmd_regress(args) -> int:
 
     if args.update and args.junit:
         raise InputError("--junit: writes the checks of a comparison; not with --update")
+    if args.seed is not None:
+        _check_seed(args.seed, 2 ** 32 - 1)  # two seeds: seed and seed + 1
     if args.junit:
         _writable(args.junit, "--junit")
     if args.out:

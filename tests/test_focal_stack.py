@@ -5,8 +5,10 @@ import json
 import numpy as np
 import pytest
 
+import lfsim
 from lfsim.analysis.compare import compare_images
 from lfsim.cli import main
+from lfsim.design.content import load_content
 from lfsim.render.focal_stack import read_exr
 
 
@@ -122,3 +124,25 @@ def test_python_api_writes_what_the_verb_writes_even_at_a_small_resolution(scene
     cues = json.loads((out / "focus_cues.json").read_text())
     assert (out / "focus_cues.png").stat().st_size > 0
     assert 1 <= cues["bands"] and all(r["sharpest_diopters"] is not None for r in cues["results"])
+
+
+def test_a_failed_render_leaves_an_existing_stack_as_it_was(scenes, tmp_path, capsys, monkeypatch):
+    """A bad --seed is refused before any work, and a render that fails midway (here: its
+    natural view raises) leaves the folder of an earlier stack byte for byte as it was."""
+    out = tmp_path / "fs"
+    args = ["focal-stack", "--focus-mm", "1000", "--spp", "1", "--resolution", "48,27", "--out", str(out), "--json"]
+    assert main(args) == 0
+    capsys.readouterr()
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert main(args + ["--seed", "-1"]) == 2 and "--seed" in capsys.readouterr().err
+    import lfsim.render.focal_stack as fs
+
+    def broken(*a, **k):
+        raise RuntimeError("render failed midway")
+
+    monkeypatch.setattr(fs, "write_png", broken)
+    with pytest.raises(RuntimeError, match="midway"):
+        fs.focal_stack(lfsim.load(scenes / "ini_ideal.toml"), load_content(scenes / "fig9_wall.toml"), out,
+                       fs.FocalStackSpec(focus_mm=[1000.0], spp=1, resolution=(48, 27)), log=lambda m: None)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    assert [p.name for p in tmp_path.iterdir()] == ["fs"]  # no temporary folder left behind

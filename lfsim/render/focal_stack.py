@@ -133,7 +133,18 @@ def focal_stack(design, content, out_dir, spec: FocalStackSpec | None = None, pr
     memory, ``stack = {"fov_deg", "images": {(kind, focus_mm): (H, W, 3)},
     "reference", "content_scene"}``, where ``reference`` is the natural view
     through a pinhole pupil (everything sharp), for focus-cue analysis.
+
+    The stack is written into a temporary folder beside ``out_dir`` that
+    replaces it only on success: a failed or interrupted render leaves an
+    existing ``out_dir`` as it was.
     """
+    from ..fileio import atomic_dir
+
+    with atomic_dir(out_dir) as tmp:
+        return _focal_stack(design, content, tmp, spec, progress, log)
+
+
+def _focal_stack(design, content, out_dir, spec, progress, log):
     from ..fileio import write_json
     from ..ini.model import model_at_depth
     from .analytic import ReverseOptics
