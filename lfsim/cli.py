@@ -300,7 +300,7 @@ def cmd_analyze(args) -> int:
         if reference.ini is None:
             raise InputError(f"{args.reference}: ini = missing: a --reference design needs an [ini] section")
     doc = analyze(design, args.out, stride=stride, symmetry=args.symmetry, depths_diopters=depths,
-                  progress=sys.stderr.isatty() and not args.json, plots=not args.no_plots,
+                  progress=not args.json, plots=not args.no_plots,
                   reference=reference)
     if args.json:
         print(_dump(doc))
@@ -343,7 +343,7 @@ def cmd_optimize(args) -> int:
     if args.iterations is not None and args.iterations < 1:
         raise InputError(f"--iterations = {args.iterations}: must be >= 1")
     stride = None if args.no_analyze else _int_pair(args.analyze_stride, "--analyze-stride")
-    quiet = args.json or not sys.stderr.isatty()
+    quiet = args.json  # progress: a bar on a terminal, periodic lines in a log
     log = (lambda *a, **k: None) if args.json else (lambda msg: print(msg, file=sys.stderr))
     doc = optimize(design, args.out, stages=stages, iterations=args.iterations, solver=args.solver,
                    resume=args.resume, progress=not quiet, log=log, analyze_stride=stride)
@@ -410,7 +410,7 @@ def cmd_focal_stack(args) -> int:
     spec = FocalStackSpec(focus_mm=[float(f) for f in focus], cdp_mm=cdp, pupil_diameter_mm=float(pupil),
                           spp=args.spp, resolution=res, seed=args.seed, eye_model=args.eye,
                           mla_cells=args.mla_cells, optics=args.optics, tessellation=args.tessellation)
-    quiet = args.json or not sys.stderr.isatty()
+    quiet = args.json  # progress: a bar on a terminal, periodic lines in a log
     log = (lambda *a, **k: None) if args.json else (lambda msg: print(msg, file=sys.stderr))
     doc, _ = focal_stack(design, content, args.out, spec, progress=not quiet, log=log)
     if args.json:
@@ -535,7 +535,7 @@ def cmd_tolerance(args) -> int:
         doc = run_tolerance(design, args.out, trials=args.trials, seed=args.seed, scheduler=sched, workers=workers,
                             serial=serial, resume=args.resume, batch=args.batch,
                             sensitivity=not args.no_sensitivity, plots=not args.no_plots,
-                            progress=sys.stderr.isatty() and not args.json)
+                            progress=not args.json)
     except RunMismatch as e:
         raise InputError(str(e)) from None
     if args.json:
@@ -587,7 +587,7 @@ def cmd_sweep(args) -> int:
                               resolution=_int_pair(args.resolution, "--resolution"), focus_cues=False)
     doc = run_sweep(design, args.out, axes, fixed, stride=stride, reference=args.reference, render=args.render,
                     render_spec=spec, content=content, scheduler=sched, workers=workers, serial=serial,
-                    batch=args.batch, progress=sys.stderr.isatty() and not args.json)
+                    batch=args.batch, progress=not args.json)
     if args.json:
         print(_dump(doc))
         return 0

@@ -175,3 +175,26 @@ def test_text_output_has_units_and_no_python_values(scenes, tmp_path, capsys):
     assert main(["layout", str(p), "--out", str(tmp_path / "lay")]) == 0
     out = capsys.readouterr().out
     assert "F/# undefined" in out and "None" not in out and (tmp_path / "lay" / "summary.json").exists()
+
+
+def test_progress_prints_lines_in_a_log():
+    """Without a terminal, progress comes as periodic plain lines with a count, the
+    percentage and an ETA (a tqdm bar's carriage returns would pile up in a log)."""
+    import io
+
+    from lfsim.progress import LogBar
+
+    out = io.StringIO()
+    b = LogBar(total=4, desc="sub-systems", unit="sub", stream=out, interval=0.0)
+    for _ in range(2):
+        b.update(1)
+    b.set_postfix_str("cost=1.5")
+    b.update(2)
+    b.close()
+    lines = out.getvalue().splitlines()
+    assert lines[0].startswith("sub-systems: 1/4 sub (25%), ") and "ETA" in lines[0]
+    assert lines[2].startswith("sub-systems: 4/4 sub (100%)") and lines[2].endswith("cost=1.5")
+    assert "\r" not in out.getvalue()
+    quiet = io.StringIO()
+    LogBar(total=3, stream=quiet, interval=0.0, disable=True).update(3)
+    assert quiet.getvalue() == ""

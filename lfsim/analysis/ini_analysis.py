@@ -106,7 +106,7 @@ def evaluate(model: IniModel, subs=None, progress: bool = False, mtf_freqs_cpd=N
     t0 = time.perf_counter()
     bar = None
     if progress:
-        from tqdm import tqdm
+        from ..progress import bar as tqdm
 
         bar = tqdm(total=len(subs), desc="sub-systems", unit="sub", leave=False)
     if bundle is None:

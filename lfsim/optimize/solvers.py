@@ -42,7 +42,8 @@ from pathlib import Path
 from typing import Protocol
 
 import numpy as np
-from tqdm import tqdm
+
+from ..progress import bar as tqdm
 
 _LAMBDA_MAX = 1e30  # damping beyond which LM declares the run stalled
 _COST_RTOL = 1e-9  # agreement required between a checkpoint's cost and the problem's on resume

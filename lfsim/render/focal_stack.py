@@ -170,7 +170,7 @@ def _focal_stack(design, content, out_dir, spec, progress, log):
 
     bar = None
     if progress:
-        from tqdm import tqdm
+        from ..progress import bar as tqdm
 
         bar = tqdm(total=layout.width * layout.height, desc="elemental images", unit="px",
                    unit_scale=True, leave=False)
@@ -231,7 +231,7 @@ def _focal_stack(design, content, out_dir, spec, progress, log):
                                                               else ("display",))]
         it = jobs
         if progress:
-            from tqdm import tqdm
+            from ..progress import bar as tqdm
 
             it = tqdm(jobs, desc="retinal images", unit="img", leave=False)
         by_focus = {}

@@ -262,7 +262,7 @@ def run_tolerance(design: Design, out_dir, trials: int | None = None, seed: int 
            "threads": None}
     bar = None
     if progress:
-        from tqdm import tqdm
+        from ..progress import bar as tqdm
 
         bar = tqdm(total=len(sens_units) + len(mc_units), initial=len(sens_units) + len(mc_units) - len(todo),
                    desc="trials", unit="trial")

@@ -165,7 +165,7 @@ def run_sweep(design: Design, out_dir, axes: dict[str, np.ndarray], fixed: dict[
     records: dict[str, dict] = {}
     bar = None
     if progress:
-        from tqdm import tqdm
+        from ..progress import bar as tqdm
 
         bar = tqdm(total=len(units), desc="points", unit="pt")
 
