@@ -187,11 +187,19 @@ def cmd_ini_design(args) -> int:
         return 0
     print(f"{model.design.name}: InI first-order model (Eqs. 1-10 from the design's own maps)")
     print(f"  {model.arr.m} x {model.arr.n} lenslets, pitch {model.arr.pitch[0]:g} mm, display gap {model.g:g} mm")
+    units = type(model.state(0)).UNITS
     for st in states:
         print(f"  CDP {st['diopters']:g} D:")
         for k, v in st.items():
-            if k != "diopters":
-                print(f"    {k:22s} {v}")
+            if k == "diopters":
+                continue
+            if v is None:
+                text = "none (no tunable lens)" if k == "tunable_power_diopters" else "undefined"
+            elif isinstance(v, (tuple, list)):  # x, y
+                text = " x ".join(f"{c:.6g}" for c in v) + f" {units.get(k, '')}"
+            else:
+                text = f"{v:.6g} {units.get(k, '')}"
+            print(f"    {k:22s} {text.rstrip()}")
     return 0
 
 

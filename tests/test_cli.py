@@ -175,6 +175,10 @@ def test_text_output_has_units_and_no_python_values(scenes, tmp_path, capsys):
     assert main(["layout", str(p), "--out", str(tmp_path / "lay")]) == 0
     out = capsys.readouterr().out
     assert "F/# undefined" in out and "None" not in out and (tmp_path / "lay" / "summary.json").exists()
+    assert main(["ini", str(scenes / "ini_coaxial.toml")]) == 0
+    out = capsys.readouterr().out
+    assert "(" not in out.split("\n", 1)[1] and "None" not in out  # no tuple reprs below the title
+    assert "    fov_deg                34.2368 x 19.7648 deg" in out and "nyquist_cpd            13.4894 cycles/deg" in out
 
 
 def test_progress_prints_lines_in_a_log():

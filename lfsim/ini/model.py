@@ -68,6 +68,11 @@ class DepthState:
 
         return asdict(self)
 
+    #: Unit of each field (x, y pairs share one).
+    UNITS = {"diopters": "D", "tunable_power_diopters": "D", "cdp_diopters_x": "D", "cdp_diopters_y": "D",
+             "p_ei": "mm", "d_v": "mm", "D_v": "mm", "delta_theta_eic_deg": "deg", "theta_eic_deg": "deg",
+             "fov_deg": "deg", "fov_diag_deg": "deg", "pixel_arcmin": "arcmin", "nyquist_cpd": "cycles/deg"}
+
 
 def _tan_deg(t: float) -> float:
     return math.degrees(math.atan(t))
