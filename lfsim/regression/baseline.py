@@ -15,8 +15,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -130,12 +128,6 @@ def load_images(folder, doc: dict) -> dict:
     return out
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
 def check_replaceable(folder) -> None:
     """Refuse to replace a path that is neither missing, an empty folder, nor a baseline folder."""
     folder = Path(folder)
@@ -149,15 +141,12 @@ def write(folder, doc: dict, images: dict, design_text: str | None = None) -> No
 
     ``doc`` is completed with the ``images`` list and written as ``baseline.json``.
     """
-    from ..fileio import write_json, write_text
+    from ..fileio import atomic_dir, write_json, write_text
     from ..render.focal_stack import write_exr
 
     folder = Path(folder)
     check_replaceable(folder)
-    folder.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".new", dir=folder.parent))
-    os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes 0700; a plain mkdir would honour the umask
-    try:
+    with atomic_dir(folder) as tmp:
         recs = []
         focus = doc["options"]["focus_mm"]
         for (kind, i), imgs in sorted(images.items()):
@@ -171,14 +160,3 @@ def write(folder, doc: dict, images: dict, design_text: str | None = None) -> No
         if design_text is not None:
             write_text(tmp / "design.toml", design_text)
         write_json(tmp / "baseline.json", doc)
-        old = None
-        if folder.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".old", dir=folder.parent))
-            old.rmdir()
-            os.replace(folder, old)
-        os.replace(tmp, folder)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
