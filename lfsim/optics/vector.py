@@ -109,13 +109,6 @@ class DesignVector:
         """The table with each index evaluated at ``wavelength_nm`` (default: the primary)."""
         return [(n, float(v), u) for (n, _, u), v in zip(self.table, self.values(wavelength_nm))]
 
-    def blocks(self, vectors) -> np.ndarray:
-        """Several vectors (each of :attr:`size`) packed as consecutive blocks of ``P``."""
-        v = np.asarray(vectors, dtype=np.float64)
-        if v.shape[-1] != self.size:
-            raise ValueError(f"a design vector has {self.size} entries, got {v.shape[-1]}")
-        return v.reshape(-1)
-
     # ------------------------------------------------------------- surfaces
     def owner(self, i: int) -> int:
         """Index of the surface whose frame and shape surface ``i`` uses (its ``same_as``)."""

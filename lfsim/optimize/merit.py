@@ -352,6 +352,9 @@ class IniMerit:
             dpar_c = dref.get("par_c", zK)
             dpar_m = dref.get("par_m", np.zeros((S, F, 4, 2, K)))
             dd_v = dref.get("d_v", np.zeros((S, K)))
+        else:  # no columns: the derivative variants of lfsim.metrics run with K = 0
+            dr_, dpos = np.zeros(r.shape + (0,)), np.zeros(pos.shape + (0,))
+            dpar_c, dpar_m, dd_v = np.zeros((S, F, 2, 0)), np.zeros((S, F, 4, 2, 0)), np.zeros((S, 0))
         blocks: list[tuple[str, np.ndarray, np.ndarray | None]] = []
 
         def add(name, res, jac):
@@ -368,9 +371,7 @@ class IniMerit:
         # their exact derivatives.
         g = self.sl_gl
         okg = ok[:, :, g]
-        K0 = K if derivatives else 0
-        dr_g = dr_[:, :, g] if derivatives else np.zeros(r[:, :, g].shape + (0,))
-        rms, _, off, doff, wn = spot.rms_spot_jvp(r[:, :, g], dr_g, self.w_gl, okg)
+        rms, _, off, doff, wn = spot.rms_spot_jvp(r[:, :, g], dr_[:, :, g], self.w_gl, okg)
         scale = w.spot * ARCMIN / math.sqrt(S * F)
         res = np.sqrt(wn)[..., None] * off * scale
         add("spot", res, np.sqrt(wn)[..., None, None] * doff * scale if derivatives else None)
@@ -390,8 +391,7 @@ class IniMerit:
         par_c, par_m = ref["par_c"], ref["par_m"]
         e = r[:, 0, 0] - par_c[:, 0]  # (S, 2)
         okc = ok[:, 0, 0]
-        de = dr_[:, 0, 0] - dpar_c[:, 0] if derivatives else np.zeros(e.shape + (K0,))
-        gd, dgd, gv, dgv = distortion.gd_deg_jvp(e, de)
+        gd, dgd, gv, dgv = distortion.gd_deg_jvp(e, dr_[:, 0, 0] - dpar_c[:, 0])
         add("gd", np.where(okc[:, None], gv, 0.0) * w.gd / math.sqrt(S),
             np.where(okc[:, None, None], dgv, 0.0) * w.gd / math.sqrt(S) if derivatives else None)
         # The mean over the whole display: each sampled lenslet stands for the
@@ -414,15 +414,13 @@ class IniMerit:
         m_ = self.sl_marg
         okm = ok[:, :, m_]
         dev = (pos[:, :, m_] - par_m) / (math.sqrt(2.0) * d_v)  # (S, F, 4, 2)
-        ddev = None
-        if derivatives:
-            ddev = ((dpos[:, :, m_] - dpar_m) / (math.sqrt(2.0) * d_v[..., None])
-                    - dev[..., None] * (dd_v[:, None, None, None, :] / d_v[..., None]))
+        ddev = ((dpos[:, :, m_] - dpar_m) / (math.sqrt(2.0) * d_v[..., None])
+                - dev[..., None] * (dd_v[:, None, None, None, :] / d_v[..., None]))
         n_m = math.sqrt(S * F * 4)
         add("pa", np.where(okm[..., None], dev, 0.0) * w.pa / n_m,
             np.where(okm[..., None, None], ddev, 0.0) * w.pa / n_m if derivatives else None)
         # PA (Eq. 12, metrics.footprint) of each field: the mean over its four marginal rays.
-        pa_f, dpa_f = footprint.pa_jvp(dev, ddev if derivatives else np.zeros(dev.shape + (0,)))
+        pa_f, dpa_f = footprint.pa_jvp(dev, ddev)
         pa_ok = okm.all(-1)
         if t.pa_max is not None:
             over = pa_ok & (pa_f > t.pa_max)
@@ -432,9 +430,7 @@ class IniMerit:
         # Local distortion of each EI (metrics.distortion: chief rays of every field against
         # the paraxial ones, about the EI's centre field).
         if t.local_distortion_max is not None and F > 1:
-            dq = dr_[:, :, 0] if derivatives else np.zeros(r[:, :, 0].shape + (0,))
-            dpc = dpar_c if derivatives else np.zeros(par_c.shape + (0,))
-            ld, dld = distortion.local_distortion_jvp(r[:, :, 0], dq, par_c, dpc)
+            ld, dld = distortion.local_distortion_jvp(r[:, :, 0], dr_[:, :, 0], par_c, dpar_c)
             over = ok[:, :, 0] & ok[:, :1, 0] & (ld > t.local_distortion_max)
             over[:, 0] = False
             jac = np.where(over[..., None], dld, 0.0) * 100.0 * w.distortion if derivatives else None
