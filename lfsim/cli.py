@@ -11,15 +11,14 @@ import csv
 import io
 import json
 import math
-import os
 import sys
-import tempfile
 
 import numpy as np
 
 from . import __version__
 from .backend import BackendError
 from .design import DesignError, load
+from .fileio import check_writable as _writable
 from .fileio import write_text
 
 
@@ -261,29 +260,6 @@ def _int_pair(text, flag):
     return a, b
 
 
-def _writable(path, flag, folder: bool = False):
-    """Refuse, before any work, an output that cannot be written: ``path`` itself when it
-    exists (a folder for ``folder``), else the nearest existing folder above it."""
-    from pathlib import Path
-
-    p = Path(path)
-    if p.exists():
-        if folder != p.is_dir():
-            raise InputError(f"{flag} = {str(path)!r}: {'not a folder' if folder else 'is a folder'}")
-        target = p
-    else:
-        target = next(q for q in p.absolute().parents if q.exists())
-        if not target.is_dir():
-            raise InputError(f"{flag} = {str(path)!r}: {target} is not a folder")
-    probe_dir = target if target.is_dir() else target.parent
-    try:  # a real probe: permission bits say nothing for root or on special file systems
-        fd, probe = tempfile.mkstemp(prefix=".lfsim-probe-", dir=probe_dir)
-        os.close(fd)
-        os.unlink(probe)
-    except OSError as e:
-        raise InputError(f"{flag} = {str(path)!r}: cannot write in {probe_dir} ({e.strerror})") from None
-
-
 def _float_list(text, flag):
     try:
         vals = [float(v) for v in text.split(",")]
@@ -485,24 +461,6 @@ def cmd_gradcheck(args) -> int:
               f"{s['finite_differences']:.2f} s; edge term at {doc['edge_rel_step']:g} x the step scale; "
               + (f"FAILED: {', '.join(bad)}" if bad else f"interior parameters within {args.tolerance:g}"))
     return 1 if bad else 0
-
-
-def cmd_report_accuracy(args) -> int:
-    from .analysis.accuracy_report import report
-
-    _writable(args.out, "--out", folder=True)
-    log = (lambda msg: None) if args.json else (lambda msg: print(msg, file=sys.stderr))
-    doc = report(args.out, quick=args.quick, log=log)
-    if args.json:
-        print(_dump(doc))
-        return 0
-    print(f"error against run time of {len(doc['knobs'])} knobs in {doc['total_seconds']:.0f} s")
-    for k, v in zip(doc["knobs"], doc["verdicts"]):
-        meets = {True: "meets its target", False: "MISSES its target", None: "no target"}[v["meets_target"]]
-        err = " / ".join("-" if e is None else f"{e:.3g}" for e in v["error_at_default"] or [None])
-        print(f"  {k['stage']:8s} {k['key']:17s} default {v['default']:>14s}: error {err:>9s}  {meets}")
-    print(f"wrote {args.out}/accuracy.md and {len(doc['plots'])} plots in {args.out}/img")
-    return 0
 
 
 def _scheduler_args(args):
@@ -843,14 +801,6 @@ def build_parser() -> argparse.ArgumentParser:
     gcp.add_argument("--json", action="store_true")
     gcp.set_defaults(func=cmd_gradcheck)
 
-    rp = sub.add_parser("report", help="reports: `report accuracy` (error against run time of every knob)")
-    rsub = rp.add_subparsers(dest="report", required=True, metavar="REPORT")
-    acc = rsub.add_parser("accuracy", help="measure error against run time of every approximation knob and write "
-                          "accuracy.md with plots")
-    acc.add_argument("--out", default="docs", help="output folder: accuracy.md and img/accuracy_*.png (default docs)")
-    acc.add_argument("--quick", action="store_true", help="a small version: fewer settings, rays and pixels")
-    acc.add_argument("--json", action="store_true")
-    acc.set_defaults(func=cmd_report_accuracy)
 
     tol = sub.add_parser("tolerance", help="Monte Carlo tolerance analysis of the design's [tolerance] section "
                          "(with compensators), sensitivity table and yield, on Dask")

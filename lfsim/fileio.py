@@ -60,6 +60,31 @@ def atomic_dir(path: str | Path):
             shutil.rmtree(tmp, ignore_errors=True)
 
 
+def check_writable(path: str | Path, flag: str, folder: bool = False) -> None:
+    """Refuse, before any work, an output that cannot be written.
+
+    Probes ``path`` itself when it exists (a folder for ``folder``), else the
+    nearest existing folder above it. ``flag`` names the option in the one-line
+    ``ValueError``.
+    """
+    p = Path(path)
+    if p.exists():
+        if folder != p.is_dir():
+            raise ValueError(f"{flag} = {str(path)!r}: {'not a folder' if folder else 'is a folder'}")
+        target = p
+    else:
+        target = next(q for q in p.absolute().parents if q.exists())
+        if not target.is_dir():
+            raise ValueError(f"{flag} = {str(path)!r}: {target} is not a folder")
+    probe_dir = target if target.is_dir() else target.parent
+    try:  # a real probe: permission bits say nothing for root or on special file systems
+        fd, probe = tempfile.mkstemp(prefix=".lfsim-probe-", dir=probe_dir)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        raise ValueError(f"{flag} = {str(path)!r}: cannot write in {probe_dir} ({e.strerror})") from None
+
+
 def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)

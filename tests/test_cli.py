@@ -129,7 +129,6 @@ def test_options_are_checked_before_any_work(scenes, tmp_path, capsys):
     """Unwritable outputs, unbounded sweeps, a NaN limit, an empty --resume folder and a zero
     resolution are refused with one line and exit 2 before any work, and leave nothing behind."""
     blocked = _blocked(tmp_path)
-    _fails_fast(capsys, ["report", "accuracy", "--quick", "--out", str(blocked)], "--out")
     _fails_fast(capsys, ["regress", str(scenes / "ini_ideal.toml"), "--baseline",
                          str(scenes.parent / "tests/lfsim_baselines/test_ini_ideal_fig9_wall"),
                          "--junit", str(blocked / "x.xml")], "--junit")

@@ -464,7 +464,7 @@ def solve_accommodation(distance_mm: float, pupil_diameter_mm: float, wavelength
         Tolerance (D) of the bounded scalar minimization ("rms").
     n_rings : int
         Gauss–Legendre nodes in h² of :func:`axial_rms_spot` ("rms").
-        Error against run time of both: ``lfsim report accuracy``
+        Error against run time of both: ``benchmarks/accuracy_report.py``
         (docs/accuracy.md).
 
     Notes
