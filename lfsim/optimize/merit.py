@@ -53,7 +53,7 @@ is accepted only when the true merit falls.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -82,6 +82,46 @@ class Column:
     @property
     def label(self) -> str:
         return self.name if self.state is None else f"tunable[{self.state}]"
+
+
+@dataclass
+class _Sample:
+    """The traced rays of one merit evaluation, shared by its residual blocks.
+
+    Shapes: S sampled sub-systems, F fields, R rays per field (chief, four
+    marginal, the Gauss–Legendre pupil), K columns. ``r`` are retinal tangents
+    about the CDP (S, F, R, 2), ``pos`` viewing-window positions, ``surf`` and
+    ``cos_in`` the recorded hits (MLA surfaces, TIR surfaces, clear apertures in
+    that order); the ``d*`` arrays are their derivatives (…, K).
+    """
+
+    model: IniModel
+    x: np.ndarray
+    derivatives: bool
+    K: int
+    subs: object
+    ref: dict
+    S: int
+    F: int
+    R: int
+    ok: np.ndarray
+    pos: np.ndarray
+    r: np.ndarray
+    surf: np.ndarray
+    cos_in: np.ndarray
+    grid_weights: np.ndarray
+    nmla: int
+    tirs: list
+    apertures: list
+    dr: np.ndarray | None = None
+    dpos: np.ndarray | None = None
+    dsurf: np.ndarray | None = None
+    dcos: np.ndarray | None = None
+    dpar_c: np.ndarray | None = None
+    dpar_m: np.ndarray | None = None
+    dd_v: np.ndarray | None = None
+    defl: np.ndarray | None = None
+    figures: dict = field(default_factory=dict)
 
 
 def columns(design: Design, spec) -> list[Column]:
@@ -322,8 +362,40 @@ class IniMerit:
     def evaluate(self, x, derivatives: bool = True):
         """(residuals (M,), Jacobian (M, K) or None, details dict)."""
         self.evaluations += 1
+        st = self._sample(x, derivatives)
+        blocks: list[tuple[str, np.ndarray, np.ndarray | None]] = []
+        K = st.K
+        for block in (self._lost, self._spot, self._gd, self._pa, self._distortion, self._crosstalk, self._tir,
+                      self._apertures, self._efl, self._thickness, self._edge_thickness_block,
+                      self._prism_thickness_block):
+            for name, res, jac in block(st):
+                res = np.where(np.isfinite(res), res, 0.0)
+                blocks.append((name, res.ravel(), None if jac is None else
+                               np.where(np.isfinite(jac), jac, 0.0).reshape(-1, K)))
+        self.layout = [(name, res.size) for name, res, _ in blocks]
+        r_all = np.concatenate([b[1] for b in blocks])
+        J_all = np.concatenate([b[2] for b in blocks]) if derivatives else None
+        details = {name: float(np.sum(res ** 2)) for name, res, _ in blocks}
+        fig = st.figures
+        okc, pa_ok, spot_ok = fig["gd_ok"], fig["pa_ok"], fig["spot_ok"]
+        gd, pa_f, rms, gw = fig["gd"], fig["pa"], fig["rms"], st.grid_weights
+        #: The last evaluation's figures per sampled sub-system (S) and field (F), as
+        #: `lfsim analyze` defines them (metrics.distortion, .footprint, .spot).
+        self.figures = {"subs": st.subs, "gd_deg": np.where(okc, gd, np.nan),
+                        "pa": np.where(pa_ok, pa_f, np.nan),
+                        "rms_spot_arcmin": np.where(spot_ok, rms * ARCMIN, np.nan)}
+        details.update(gd_max_deg=float(np.max(gd[okc])) if okc.any() else None,
+                       pa_max=float(np.max(pa_f[pa_ok])) if pa_ok.any() else None,
+                       rms_spot_mean_arcmin=float(np.mean(rms[spot_ok]) * ARCMIN) if spot_ok.any() else None,
+                       gd_mean_deg=float(gw[okc] @ gd[okc] / gw[okc].sum()) if okc.any() else None,
+                       rays=int(st.ok.size), rays_lost=int((~st.ok).sum()),
+                       efl_mm=[float(v) for v in st.ref["efl"]])
+        return r_all, J_all, details
+
+    def _sample(self, x, derivatives: bool) -> _Sample:
+        """Trace the sampled rays at ``x``: their retinal tangents, VW positions and
+        recorded hits, with derivatives (the display layout's change included)."""
         model = self.model_at(x)
-        t, w = self.spec.targets, self.spec.weights
         K = len(self.cols)
         subs, ref = self._references(model)
         (S, F, R), J = self._rays(model, subs, derivatives)
@@ -334,175 +406,191 @@ class IniMerit:
         dirs = J.dir.reshape(S, F, R, 3)
         slope = dirs[..., :2] / dirs[..., 2:3]
         r = slope - pos * (D[..., None] / 1000.0)
+        nrec = J.surf.shape[1]
+        st = _Sample(model=model, x=np.asarray(x, dtype=np.float64), derivatives=derivatives, K=K, subs=subs,
+                     ref=ref, S=S, F=F, R=R, ok=ok, pos=pos, r=r, surf=J.surf.reshape(S, F, R, nrec, 2),
+                     cos_in=J.cos_in.reshape(S, F, R, nrec), grid_weights=self._grid_weights(model, subs),
+                     nmla=len(self._crosstalk_surfaces(model)), tirs=self._tir_surfaces(model),
+                     apertures=self._aperture_surfaces(model))
         if derivatives:
             # rays move with the display layout too: d/dx += ∂/∂s · ds/dx
             ds = dref["display"][:, :, None] if dref else np.zeros((S, F, 1, 2, K))  # (S, F, 1, 2, K)
-            dpos = J.d_pos.reshape(S, F, R, 2, K) + np.einsum("sfrab,sfrbk->sfrak",
-                                                              J.ds_pos.reshape(S, F, R, 2, 2), ds)
+            st.dpos = J.d_pos.reshape(S, F, R, 2, K) + np.einsum("sfrab,sfrbk->sfrak",
+                                                                 J.ds_pos.reshape(S, F, R, 2, 2), ds)
             ddir = J.d_dir.reshape(S, F, R, 3, K) + np.einsum("sfrab,sfrbk->sfrak",
                                                               J.ds_dir.reshape(S, F, R, 3, 2), ds)
-            nrec = J.surf.shape[1]
-            dsurf = J.d_surf.reshape(S, F, R, nrec, 2, K) + np.einsum(
+            st.dsurf = J.d_surf.reshape(S, F, R, nrec, 2, K) + np.einsum(
                 "sfrjab,sfrbk->sfrjak", J.ds_surf.reshape(S, F, R, nrec, 2, 2), ds)
-            dcos = J.d_cos_in.reshape(S, F, R, nrec, K) + np.einsum(
+            st.dcos = J.d_cos_in.reshape(S, F, R, nrec, K) + np.einsum(
                 "sfrjb,sfrbk->sfrjk", J.ds_cos_in.reshape(S, F, R, nrec, 2), ds)
             dslope = (ddir[..., :2, :] - slope[..., None] * ddir[..., 2:3, :]) / dirs[..., 2:3, None]
-            dr_ = dslope - dpos * (D[..., None, None] / 1000.0)
-            zK = np.zeros((S, F, 2, K))
-            dpar_c = dref.get("par_c", zK)
-            dpar_m = dref.get("par_m", np.zeros((S, F, 4, 2, K)))
-            dd_v = dref.get("d_v", np.zeros((S, K)))
+            st.dr = dslope - st.dpos * (D[..., None, None] / 1000.0)
+            st.dpar_c = dref.get("par_c", np.zeros((S, F, 2, K)))
+            st.dpar_m = dref.get("par_m", np.zeros((S, F, 4, 2, K)))
+            st.dd_v = dref.get("d_v", np.zeros((S, K)))
+            st.defl = dref.get("efl")
         else:  # no columns: the derivative variants of lfsim.metrics run with K = 0
-            dr_, dpos = np.zeros(r.shape + (0,)), np.zeros(pos.shape + (0,))
-            dpar_c, dpar_m, dd_v = np.zeros((S, F, 2, 0)), np.zeros((S, F, 4, 2, 0)), np.zeros((S, 0))
-        blocks: list[tuple[str, np.ndarray, np.ndarray | None]] = []
+            st.dr, st.dpos = np.zeros(r.shape + (0,)), np.zeros(pos.shape + (0,))
+            st.dpar_c, st.dpar_m, st.dd_v = np.zeros((S, F, 2, 0)), np.zeros((S, F, 4, 2, 0)), np.zeros((S, 0))
+        return st
 
-        def add(name, res, jac):
-            res = np.where(np.isfinite(res), res, 0.0)
-            blocks.append((name, res.ravel(), None if jac is None else
-                           np.where(np.isfinite(jac), jac, 0.0).reshape(-1, K)))
+    # One method per residual block: each yields (name, residuals, Jacobian rows or None).
+    def _lost(self, st: _Sample):
+        """A constant per ray lost to a failed refraction or intersection (no derivative)."""
+        lost = (~st.ok).reshape(-1).astype(np.float64) * LOST
+        yield "lost", lost, np.zeros((lost.size, st.K)) if st.derivatives else None
 
-        # Lost rays: a constant each (no derivative).
-        lost = (~ok).reshape(-1).astype(np.float64) * LOST
-        add("lost", lost, np.zeros((lost.size, K)) if derivatives else None)
-
-        # RMS spot over the Gauss–Legendre pupil: the angular offsets about the spot's
-        # centroid direction of metrics.spot (the figure `lfsim analyze` reports), with
-        # their exact derivatives.
+    def _spot(self, st: _Sample):
+        """RMS spot over the Gauss–Legendre pupil: the angular offsets about the spot's
+        centroid direction of metrics.spot (the figure `lfsim analyze` reports), with
+        their exact derivatives; then the per-axis RMS beyond its limit."""
+        t, w = self.spec.targets, self.spec.weights
         g = self.sl_gl
-        okg = ok[:, :, g]
-        rms, _, off, doff, wn = spot.rms_spot_jvp(r[:, :, g], dr_[:, :, g], self.w_gl, okg)
-        scale = w.spot * ARCMIN / math.sqrt(S * F)
-        res = np.sqrt(wn)[..., None] * off * scale
-        add("spot", res, np.sqrt(wn)[..., None, None] * doff * scale if derivatives else None)
-        if t.spot_axis_max_arcmin is not None:
-            # RMS along x and along y of every sub-system and field beyond the limit.
-            rms_a = np.sqrt(np.sum(wn[..., None] * off ** 2, axis=2)) * ARCMIN  # (S, F, 2)
-            over = (rms_a > t.spot_axis_max_arcmin) & okg.any(-1)[..., None]
-            jac = None
-            if derivatives:
-                drms = (np.sum(wn[..., None, None] * off[..., None] * doff, axis=2) * ARCMIN ** 2
-                        / np.maximum(rms_a, 1e-300)[..., None])
-                jac = np.where(over[..., None], drms, 0.0) * 10.0 * w.spot
-            add("spot_axis_max", np.where(over, rms_a - t.spot_axis_max_arcmin, 0.0) * 10.0 * w.spot, jac)
+        okg = st.ok[:, :, g]
+        rms, _, off, doff, wn = spot.rms_spot_jvp(st.r[:, :, g], st.dr[:, :, g], self.w_gl, okg)
+        st.figures.update(rms=rms, spot_ok=okg.any(-1))
+        scale = w.spot * ARCMIN / math.sqrt(st.S * st.F)
+        yield ("spot", np.sqrt(wn)[..., None] * off * scale,
+               np.sqrt(wn)[..., None, None] * doff * scale if st.derivatives else None)
+        if t.spot_axis_max_arcmin is None:
+            return
+        rms_a = np.sqrt(np.sum(wn[..., None] * off ** 2, axis=2)) * ARCMIN  # (S, F, 2)
+        over = (rms_a > t.spot_axis_max_arcmin) & okg.any(-1)[..., None]
+        jac = None
+        if st.derivatives:
+            drms = (np.sum(wn[..., None, None] * off[..., None] * doff, axis=2) * ARCMIN ** 2
+                    / np.maximum(rms_a, 1e-300)[..., None])
+            jac = np.where(over[..., None], drms, 0.0) * 10.0 * w.spot
+        yield "spot_axis_max", np.where(over, rms_a - t.spot_axis_max_arcmin, 0.0) * 10.0 * w.spot, jac
 
-        # GD (Eq. 11, metrics.distortion) on the centre field's chief ray, against the
-        # paraxial chief ray; the residual vector has |v| = GD in degrees.
-        par_c, par_m = ref["par_c"], ref["par_m"]
-        e = r[:, 0, 0] - par_c[:, 0]  # (S, 2)
-        okc = ok[:, 0, 0]
-        gd, dgd, gv, dgv = distortion.gd_deg_jvp(e, dr_[:, 0, 0] - dpar_c[:, 0])
-        add("gd", np.where(okc[:, None], gv, 0.0) * w.gd / math.sqrt(S),
-            np.where(okc[:, None, None], dgv, 0.0) * w.gd / math.sqrt(S) if derivatives else None)
+    def _gd(self, st: _Sample):
+        """GD (Eq. 11, metrics.distortion) on the centre field's chief ray against the
+        paraxial chief ray (the residual vector has |v| = GD in degrees); the mean over
+        the whole display and the per-sub-system maximum as hinges."""
+        t, w, S = self.spec.targets, self.spec.weights, st.S
+        e = st.r[:, 0, 0] - st.ref["par_c"][:, 0]  # (S, 2)
+        okc = st.ok[:, 0, 0]
+        gd, dgd, gv, dgv = distortion.gd_deg_jvp(e, st.dr[:, 0, 0] - st.dpar_c[:, 0])
+        st.figures.update(gd=gd, gd_ok=okc)
+        yield ("gd", np.where(okc[:, None], gv, 0.0) * w.gd / math.sqrt(S),
+               np.where(okc[:, None, None], dgv, 0.0) * w.gd / math.sqrt(S) if st.derivatives else None)
         # The mean over the whole display: each sampled lenslet stands for the
         # lenslets nearest to it (all weights equal at stride 1).
-        gw = self._grid_weights(model, subs)
         if t.gd_mean_deg is not None and okc.any():
-            wm = np.where(okc, gw, 0.0)
+            wm = np.where(okc, st.grid_weights, 0.0)
             wm = wm / wm.sum()
             mean = float(wm @ gd)
             hit = mean > t.gd_mean_deg
-            jac = (wm @ dgd * 10.0 * w.gd * hit)[None] if derivatives else None
-            add("gd_mean", np.array([(mean - t.gd_mean_deg) * 10.0 * w.gd if hit else 0.0]), jac)
+            jac = (wm @ dgd * 10.0 * w.gd * hit)[None] if st.derivatives else None
+            yield "gd_mean", np.array([(mean - t.gd_mean_deg) * 10.0 * w.gd if hit else 0.0]), jac
         if t.gd_max_deg is not None:
             over = okc & (gd > t.gd_max_deg)
-            add("gd_max", np.where(over, gd - t.gd_max_deg, 0.0) * 10.0 * w.gd,
-                np.where(over[:, None], dgd, 0.0) * 10.0 * w.gd if derivatives else None)
+            yield ("gd_max", np.where(over, gd - t.gd_max_deg, 0.0) * 10.0 * w.gd,
+                   np.where(over[:, None], dgd, 0.0) * 10.0 * w.gd if st.derivatives else None)
 
-        # PA (Eq. 12): marginal rays' footprint errors.
-        d_v = ref["d_v"][:, None, None, None]
+    def _pa(self, st: _Sample):
+        """PA (Eq. 12, metrics.footprint): the marginal rays' footprint errors, and each
+        field's PA (the mean over its four marginal rays) beyond its maximum."""
+        t, w = self.spec.targets, self.spec.weights
+        d_v = st.ref["d_v"][:, None, None, None]
         m_ = self.sl_marg
-        okm = ok[:, :, m_]
-        dev = (pos[:, :, m_] - par_m) / (math.sqrt(2.0) * d_v)  # (S, F, 4, 2)
-        ddev = ((dpos[:, :, m_] - dpar_m) / (math.sqrt(2.0) * d_v[..., None])
-                - dev[..., None] * (dd_v[:, None, None, None, :] / d_v[..., None]))
-        n_m = math.sqrt(S * F * 4)
-        add("pa", np.where(okm[..., None], dev, 0.0) * w.pa / n_m,
-            np.where(okm[..., None, None], ddev, 0.0) * w.pa / n_m if derivatives else None)
-        # PA (Eq. 12, metrics.footprint) of each field: the mean over its four marginal rays.
+        okm = st.ok[:, :, m_]
+        dev = (st.pos[:, :, m_] - st.ref["par_m"]) / (math.sqrt(2.0) * d_v)  # (S, F, 4, 2)
+        ddev = ((st.dpos[:, :, m_] - st.dpar_m) / (math.sqrt(2.0) * d_v[..., None])
+                - dev[..., None] * (st.dd_v[:, None, None, None, :] / d_v[..., None]))
+        n_m = math.sqrt(st.S * st.F * 4)
+        yield ("pa", np.where(okm[..., None], dev, 0.0) * w.pa / n_m,
+               np.where(okm[..., None, None], ddev, 0.0) * w.pa / n_m if st.derivatives else None)
         pa_f, dpa_f = footprint.pa_jvp(dev, ddev)
         pa_ok = okm.all(-1)
+        st.figures.update(pa=pa_f, pa_ok=pa_ok)
         if t.pa_max is not None:
             over = pa_ok & (pa_f > t.pa_max)
-            add("pa_max", np.where(over, pa_f - t.pa_max, 0.0) * 10.0 * w.pa,
-                np.where(over[..., None], dpa_f, 0.0) * 10.0 * w.pa if derivatives else None)
+            yield ("pa_max", np.where(over, pa_f - t.pa_max, 0.0) * 10.0 * w.pa,
+                   np.where(over[..., None], dpa_f, 0.0) * 10.0 * w.pa if st.derivatives else None)
 
-        # Local distortion of each EI (metrics.distortion: chief rays of every field against
-        # the paraxial ones, about the EI's centre field).
-        if t.local_distortion_max is not None and F > 1:
-            ld, dld = distortion.local_distortion_jvp(r[:, :, 0], dr_[:, :, 0], par_c, dpar_c)
-            over = ok[:, :, 0] & ok[:, :1, 0] & (ld > t.local_distortion_max)
-            over[:, 0] = False
-            jac = np.where(over[..., None], dld, 0.0) * 100.0 * w.distortion if derivatives else None
-            add("distortion", np.where(over, ld - t.local_distortion_max, 0.0) * 100.0 * w.distortion, jac)
+    def _distortion(self, st: _Sample):
+        """Local distortion of each EI beyond its maximum (metrics.distortion: chief rays
+        of every field against the paraxial ones, about the EI's centre field)."""
+        t, w = self.spec.targets, self.spec.weights
+        if t.local_distortion_max is None or st.F <= 1:
+            return
+        ld, dld = distortion.local_distortion_jvp(st.r[:, :, 0], st.dr[:, :, 0], st.ref["par_c"], st.dpar_c)
+        over = st.ok[:, :, 0] & st.ok[:, :1, 0] & (ld > t.local_distortion_max)
+        over[:, 0] = False
+        jac = np.where(over[..., None], dld, 0.0) * 100.0 * w.distortion if st.derivatives else None
+        yield "distortion", np.where(over, ld - t.local_distortion_max, 0.0) * 100.0 * w.distortion, jac
 
-        # Crosstalk: pupil and marginal rays inside (½ − margin) of the cell on every MLA surface.
-        nmla = len(self._crosstalk_surfaces(model))
-        pitch = np.array(model.arr.pitch)
-        lim = (0.5 - (t.crosstalk_margin or 0.0)) * pitch
-        hs = J.surf[:, :nmla].reshape(S, F, R, nmla, 2)
+    def _crosstalk(self, st: _Sample):
+        """Pupil and marginal rays beyond (½ − margin) of the cell on every MLA surface, µm."""
+        t, w, n = self.spec.targets, self.spec.weights, st.nmla
+        lim = (0.5 - (t.crosstalk_margin or 0.0)) * np.array(st.model.arr.pitch)
+        hs = st.surf[:, :, :, :n]
         ex = np.abs(hs) - lim
-        over = (ex > 0) & ok[..., None, None]
+        over = (ex > 0) & st.ok[..., None, None]
         jac = None
-        if derivatives:
-            dh = dsurf[:, :, :, :nmla]
-            jac = np.where(over[..., None], np.sign(hs)[..., None] * dh, 0.0) * 1000.0 * w.crosstalk
-        add("crosstalk", np.where(over, ex, 0.0) * 1000.0 * w.crosstalk, jac)
+        if st.derivatives:
+            jac = np.where(over[..., None], np.sign(hs)[..., None] * st.dsurf[:, :, :, :n], 0.0) * 1000.0 * w.crosstalk
+        yield "crosstalk", np.where(over, ex, 0.0) * 1000.0 * w.crosstalk, jac
 
-        # TIR margin on surfaces that rely on total internal reflection.
-        tirs = self._tir_surfaces(model)
-        if tirs and t.tir_margin_deg is not None:
-            vals = model.values(0)
-            names = model.tracer.names
-            for j_, i in enumerate(tirs):
-                n1 = vals[names.index(model.tracer.vector.media[i])]
-                n2 = vals[names.index(f"{model.system.surfaces[i].name}.index")]
-                theta_c = math.degrees(math.asin(min(1.0, n2 / n1)))
-                cosv = np.clip(J.cos_in[:, nmla + j_], -1.0, 1.0).reshape(S, F, R)
-                th = np.degrees(np.arccos(cosv))
-                need = theta_c + t.tir_margin_deg
-                over = ok & (th < need)
-                jac = None
-                if derivatives:
-                    dcos_ = dcos[:, :, :, nmla + j_]
-                    sin = np.maximum(np.sqrt(1.0 - cosv ** 2), 1e-12)
-                    jac = np.where(over[..., None], dcos_ / sin[..., None] * DEG, 0.0) * w.tir
-                add(f"tir_{model.system.surfaces[i].name}", np.where(over, need - th, 0.0) * w.tir, jac)
+    def _tir(self, st: _Sample):
+        """Incidence below the critical angle + margin on surfaces that rely on TIR, °."""
+        t, w, model = self.spec.targets, self.spec.weights, st.model
+        if not st.tirs or t.tir_margin_deg is None:
+            return
+        vals, names = model.values(0), model.tracer.names
+        for j_, i in enumerate(st.tirs):
+            n1 = vals[names.index(model.tracer.vector.media[i])]
+            n2 = vals[names.index(f"{model.system.surfaces[i].name}.index")]
+            theta_c = math.degrees(math.asin(min(1.0, n2 / n1)))
+            cosv = np.clip(st.cos_in[:, :, :, st.nmla + j_], -1.0, 1.0)
+            th = np.degrees(np.arccos(cosv))
+            need = theta_c + t.tir_margin_deg
+            over = st.ok & (th < need)
+            jac = None
+            if st.derivatives:
+                sin = np.maximum(np.sqrt(1.0 - cosv ** 2), 1e-12)
+                jac = np.where(over[..., None], st.dcos[:, :, :, st.nmla + j_] / sin[..., None] * DEG, 0.0) * w.tir
+            yield f"tir_{model.system.surfaces[i].name}", np.where(over, need - th, 0.0) * w.tir, jac
 
-        # Clear apertures: rays of the pupil stay inside every aperture (the analysis
-        # vignettes them there), µm beyond the edge.
-        ap_surf = self._aperture_surfaces(model)
-        off = nmla + len(tirs)
-        for j_, i in enumerate(ap_surf):
+    def _apertures(self, st: _Sample):
+        """Rays of the pupil beyond a clear aperture (the analysis vignettes them
+        there) less ``aperture_margin_mm``, µm beyond the edge."""
+        t, w, model = self.spec.targets, self.spec.weights, st.model
+        off = st.nmla + len(st.tirs)
+        scale = 1000.0 * w.crosstalk
+        margin = t.aperture_margin_mm
+        for j_, i in enumerate(st.apertures):
             ap = model.system.surfaces[i].aperture
-            h = J.surf[:, off + j_].reshape(S, F, R, 2) - np.array(ap.decenter)
-            dh = dsurf[:, :, :, off + j_] if derivatives else None
-            margin = t.aperture_margin_mm
+            name = f"aperture_{model.system.surfaces[i].name}"
+            h = st.surf[:, :, :, off + j_] - np.array(ap.decenter)
+            dh = st.dsurf[:, :, :, off + j_] if st.derivatives else None
             if ap.kind == "circular":
                 rad = np.hypot(h[..., 0], h[..., 1])
-                over = ok & (rad > ap.radius - margin)
+                over = st.ok & (rad > ap.radius - margin)
                 jac = None
-                if derivatives:
+                if st.derivatives:
                     u = np.where(over[..., None], h / np.maximum(rad, 1e-300)[..., None], 0.0)
-                    jac = np.einsum("sfra,sfrak->sfrk", u, dh) * 1000.0 * w.crosstalk
-                add(f"aperture_{model.system.surfaces[i].name}",
-                    np.where(over, rad - (ap.radius - margin), 0.0) * 1000.0 * w.crosstalk, jac)
+                    jac = np.einsum("sfra,sfrak->sfrk", u, dh) * scale
+                yield name, np.where(over, rad - (ap.radius - margin), 0.0) * scale, jac
             else:
                 ex = np.abs(h) - (np.array(ap.half_width) - margin)
-                over = (ex > 0) & ok[..., None]
-                jac = None
-                if derivatives:
-                    jac = np.where(over[..., None], np.sign(h)[..., None] * dh, 0.0) * 1000.0 * w.crosstalk
-                add(f"aperture_{model.system.surfaces[i].name}", np.where(over, ex, 0.0) * 1000.0 * w.crosstalk,
-                    jac)
+                over = (ex > 0) & st.ok[..., None]
+                jac = np.where(over[..., None], np.sign(h)[..., None] * dh, 0.0) * scale if st.derivatives else None
+                yield name, np.where(over, ex, 0.0) * scale, jac
 
-        # Relay–eyepiece focal length per CDP state (central differences of the first-order maps).
-        f = ref["efl"]
+    def _efl(self, st: _Sample):
+        """Relay–eyepiece focal length per CDP state, % from its target (derivatives:
+        central differences of the first-order maps)."""
+        w = self.spec.weights
+        f = st.ref["efl"]
         tgt = self.efl_target[:len(f)]
-        jac = dref["efl"] / tgt[:, None] * 100.0 * w.efl if derivatives and K else None
-        add("efl", (f - tgt) / tgt * 100.0 * w.efl, jac)
+        jac = st.defl / tgt[:, None] * 100.0 * w.efl if st.derivatives and st.K else None
+        yield "efl", (f - tgt) / tgt * 100.0 * w.efl, jac
 
-        # Centre thickness of variable glass thicknesses and air gaps.
+    def _thickness(self, st: _Sample):
+        """Centre thickness of variable glass thicknesses and air gaps below their minimum, µm."""
+        t, w, model = self.spec.targets, self.spec.weights, st.model
         res_t, jac_t = [], []
         for j_, c in enumerate(self.cols):
             if c.state is not None or not c.name.endswith(".thickness"):
@@ -514,82 +602,74 @@ class IniMerit:
             lo = t.min_center_thickness if glass else t.min_air_gap
             if lo is None:
                 continue
-            v = float(x[j_])
+            v = float(st.x[j_])
             res_t.append(max(0.0, lo - v) * 1000.0 * w.thickness)
-            row = np.zeros(K)
+            row = np.zeros(st.K)
             if v < lo:
                 row[j_] = -1000.0 * w.thickness
             jac_t.append(row)
         if res_t:
-            add("thickness", np.array(res_t), np.array(jac_t) if derivatives else None)
+            yield "thickness", np.array(res_t), np.array(jac_t) if st.derivatives else None
 
-        self.layout = [(name, res.size) for name, res, _ in blocks]
-        # Edge thickness of glass elements at their larger clear radius.
-        if t.min_edge_thickness is not None:
-            pairs = self._glass_pairs(model)
-            if pairs:
-                vals = model.values0
-                et = np.array([self._edge_thickness(model, vals, i, j, rad) for i, j, rad in pairs])
-                over = et < t.min_edge_thickness
-                jac = None
-                if derivatives:
-                    names = model.tracer.names
-                    jac = np.zeros((len(pairs), K))
-                    for q, (i, j, rad) in enumerate(pairs):
-                        if not over[q]:
-                            continue
-                        own = {model.system.surfaces[i].name, model.system.surfaces[j].name}
-                        for c_, col in enumerate(self.cols):
-                            if col.state is not None or col.name.split(".")[0] not in own:
-                                continue
-                            h = 1e-7 * max(1.0, abs(x[c_]))
-                            vp, vm = vals.copy(), vals.copy()
-                            vp[names.index(col.name)] += h
-                            vm[names.index(col.name)] -= h
-                            jac[q, c_] = -(self._edge_thickness(model, vp, i, j, rad)
-                                           - self._edge_thickness(model, vm, i, j, rad)) / (2 * h)
-                    jac *= 1000.0 * w.thickness
-                add("edge_thickness", np.where(over, t.min_edge_thickness - et, 0.0) * 1000.0 * w.thickness, jac)
+    def _edge_thickness_block(self, st: _Sample):
+        """Edge thickness of glass elements at their larger clear radius below its minimum,
+        µm (derivatives by central differences of the sags)."""
+        t, w, model, x = self.spec.targets, self.spec.weights, st.model, st.x
+        if t.min_edge_thickness is None:
+            return
+        pairs = self._glass_pairs(model)
+        if not pairs:
+            return
+        vals = model.values0
+        et = np.array([self._edge_thickness(model, vals, i, j, rad) for i, j, rad in pairs])
+        over = et < t.min_edge_thickness
+        jac = None
+        if st.derivatives:
+            names = model.tracer.names
+            jac = np.zeros((len(pairs), st.K))
+            for q, (i, j, rad) in enumerate(pairs):
+                if not over[q]:
+                    continue
+                own = {model.system.surfaces[i].name, model.system.surfaces[j].name}
+                for c_, col in enumerate(self.cols):
+                    if col.state is not None or col.name.split(".")[0] not in own:
+                        continue
+                    h = 1e-7 * max(1.0, abs(x[c_]))
+                    vp, vm = vals.copy(), vals.copy()
+                    vp[names.index(col.name)] += h
+                    vm[names.index(col.name)] -= h
+                    jac[q, c_] = -(self._edge_thickness(model, vp, i, j, rad)
+                                   - self._edge_thickness(model, vm, i, j, rad)) / (2 * h)
+            jac *= 1000.0 * w.thickness
+        yield "edge_thickness", np.where(over, t.min_edge_thickness - et, 0.0) * 1000.0 * w.thickness, jac
 
-        # Prism thickness between opposite faces (lfsim.optics.solids), at the faces'
-        # aperture grids; derivatives by central differences of the geometry.
-        if t.min_prism_thickness is not None and self._has_prism:
-            vals = model.values0
-            th = prism_thickness(model.tracer, vals, PRISM_POINTS)[0][0]
-            over = np.isfinite(th) & (th < t.min_prism_thickness)
-            jac = None
-            if derivatives:
-                jac = np.zeros((th.size, K))
-                geo = [j_ for j_, c in enumerate(self.cols) if c.state is None]
-                if over.any() and geo:
-                    names = model.tracer.names
-                    hs = np.array([1e-7 * max(1.0, abs(x[j_])) for j_ in geo])
-                    V = np.repeat(vals[None], 2 * len(geo), axis=0)
-                    for q, (j_, h) in enumerate(zip(geo, hs)):
-                        V[2 * q, names.index(self.cols[j_].name)] += h
-                        V[2 * q + 1, names.index(self.cols[j_].name)] -= h
-                    tv = prism_thickness(model.tracer, V, PRISM_POINTS)[0]
-                    with np.errstate(invalid="ignore"):  # a point whose line misses at x ± h: no slope
-                        d_th = (tv[0::2] - tv[1::2]) / (2.0 * hs[:, None])  # (len(geo), Q)
-                    jac[:, geo] = np.where(over[:, None] & np.isfinite(d_th.T), -d_th.T, 0.0)
-                jac *= 1000.0 * w.thickness
-            add("prism_thickness", np.where(over, t.min_prism_thickness - th, 0.0) * 1000.0 * w.thickness, jac)
-
-        r_all = np.concatenate([b[1] for b in blocks])
-        J_all = np.concatenate([b[2] for b in blocks]) if derivatives else None
-        details = {name: float(np.sum(res ** 2)) for name, res, _ in blocks}
-        #: The last evaluation's figures per sampled sub-system (S) and field (F), as
-        #: `lfsim analyze` defines them (metrics.distortion, .footprint, .spot).
-        self.figures = {"subs": subs, "gd_deg": np.where(okc, gd, np.nan),
-                        "pa": np.where(pa_ok, pa_f, np.nan),
-                        "rms_spot_arcmin": np.where(okg.any(-1), rms * ARCMIN, np.nan)}
-        details.update(gd_max_deg=float(np.max(gd[okc])) if okc.any() else None,
-                       pa_max=float(np.max(pa_f[pa_ok])) if pa_ok.any() else None,
-                       rms_spot_mean_arcmin=float(np.mean(rms[okg.any(-1)]) * ARCMIN) if okg.any() else None,
-                       gd_mean_deg=float(gw[okc] @ gd[okc] / gw[okc].sum()) if okc.any() else None,
-                       rays=int(ok.size), rays_lost=int((~ok).sum()),
-                       efl_mm=[float(v) for v in f])
-        return r_all, J_all, details
+    def _prism_thickness_block(self, st: _Sample):
+        """A prism's thickness between opposite faces (lfsim.optics.solids) below its
+        minimum at the faces' aperture grids, µm (derivatives by central differences of
+        the geometry)."""
+        t, w, model, x = self.spec.targets, self.spec.weights, st.model, st.x
+        if t.min_prism_thickness is None or not self._has_prism:
+            return
+        vals = model.values0
+        th = prism_thickness(model.tracer, vals, PRISM_POINTS)[0][0]
+        over = np.isfinite(th) & (th < t.min_prism_thickness)
+        jac = None
+        if st.derivatives:
+            jac = np.zeros((th.size, st.K))
+            geo = [j_ for j_, c in enumerate(self.cols) if c.state is None]
+            if over.any() and geo:
+                names = model.tracer.names
+                hs = np.array([1e-7 * max(1.0, abs(x[j_])) for j_ in geo])
+                V = np.repeat(vals[None], 2 * len(geo), axis=0)
+                for q, (j_, h) in enumerate(zip(geo, hs)):
+                    V[2 * q, names.index(self.cols[j_].name)] += h
+                    V[2 * q + 1, names.index(self.cols[j_].name)] -= h
+                tv = prism_thickness(model.tracer, V, PRISM_POINTS)[0]
+                with np.errstate(invalid="ignore"):  # a point whose line misses at x ± h: no slope
+                    d_th = (tv[0::2] - tv[1::2]) / (2.0 * hs[:, None])  # (len(geo), Q)
+                jac[:, geo] = np.where(over[:, None] & np.isfinite(d_th.T), -d_th.T, 0.0)
+            jac *= 1000.0 * w.thickness
+        yield "prism_thickness", np.where(over, t.min_prism_thickness - th, 0.0) * 1000.0 * w.thickness, jac
 
     # Problem protocol
     def residuals(self, x) -> np.ndarray:
