@@ -1,0 +1,7 @@
+"""``python -m lfsim.cli``: the ``lfsim`` command."""
+
+import sys
+
+from . import main
+
+sys.exit(main())

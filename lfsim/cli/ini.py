@@ -1,0 +1,200 @@
+"""Verbs of the InI-HMD design stage: `ini`, `analyze`, `optimize`."""
+
+from __future__ import annotations
+
+import sys
+
+from ..design import load
+from .common import InputError, _add_set, _dump, _float_list, _int_pair, _load_design
+
+
+def cmd_ini_design(args) -> int:
+    from ..ini.model import IniModel
+
+    model = IniModel(_load_design(args))
+    states = [model.state(k).as_dict() for k in range(len(model.depths))]
+    doc = {"design": model.design.name, "file": args.design, "p_mla": list(model.arr.pitch),
+           "g": model.g, "m": model.arr.m, "n": model.arr.n, "states": states}
+    if args.json:
+        print(_dump(doc))
+        return 0
+    print(f"{model.design.name}: InI first-order model (Eqs. 1-10 from the design's own maps)")
+    print(f"  {model.arr.m} x {model.arr.n} lenslets, pitch {model.arr.pitch[0]:g} mm, display gap {model.g:g} mm")
+    units = type(model.state(0)).UNITS
+    for st in states:
+        print(f"  CDP {st['diopters']:g} D:")
+        for k, v in st.items():
+            if k == "diopters":
+                continue
+            if v is None:
+                text = "none (no tunable lens)" if k == "tunable_power_diopters" else "undefined"
+            elif isinstance(v, (tuple, list)):  # x, y
+                text = " x ".join(f"{c:.6g}" for c in v) + f" {units.get(k, '')}"
+            else:
+                text = f"{v:.6g} {units.get(k, '')}"
+            print(f"    {k:22s} {text.rstrip()}")
+    return 0
+
+
+def cmd_ini(args) -> int:
+    from ..ini.first_order import IniInputError, ini_first_order
+
+    if args.design is not None:
+        return cmd_ini_design(args)
+    missing = [f"--{k.replace('_', '-')}" for k in ("p_mla", "g", "z_xp", "f_ep", "m", "n")
+               if getattr(args, k) is None]
+    if args.l is None and args.f_mla is None:
+        missing.append("--l or --f-mla")
+    if missing:
+        raise InputError(f"lfsim ini: give a design file or the inputs {', '.join(missing)}")
+
+    if args.z_ic is not None and args.cdp_diopters is not None:
+        ref = ini_first_order(args.p_mla, args.g, args.f_ep, args.z_xp, args.m, args.n,
+                              l=args.l, f_mla=args.f_mla, z_ic=args.z_ic)
+        if abs(ref.cdp_diopters - args.cdp_diopters) > 1e-9 * max(1.0, args.cdp_diopters):
+            raise InputError(f"--cdp-diopters = {args.cdp_diopters!r} disagrees with --z-ic = {args.z_ic!r}, "
+                             f"which puts the CDP at {ref.cdp_diopters:.9g} D: give one of them")
+        z_ic, cdp = args.z_ic, None
+    else:
+        z_ic, cdp = args.z_ic, args.cdp_diopters
+    try:
+        fo = ini_first_order(args.p_mla, args.g, args.f_ep, args.z_xp, args.m, args.n,
+                             l=args.l, f_mla=args.f_mla, z_ic=z_ic, cdp_diopters=cdp,
+                             d_mla_ep=args.d_mla_ep)
+    except IniInputError as e:
+        raise InputError(str(e)) from None
+    d = fo.as_dict()
+    if args.json:
+        print(_dump(d))
+    else:
+        print("InI-HMD first-order model (Eqs. 1-10; mm, deg, diopters)")
+        for k, v in d.items():
+            print(f"  {k:22s} {'inf' if v is None else (f'{v:.10g}' if isinstance(v, float) else v)}")
+    return 0
+
+
+def cmd_analyze(args) -> int:
+    from ..analysis.ini_analysis import analyze
+
+    design = _load_design(args)
+    if design.ini is None:
+        raise InputError(f"{args.design}: ini = missing: lfsim analyze needs an [ini] section")
+    stride = _int_pair(args.stride, "--stride") if args.stride else None
+    depths = _float_list(args.depths, "--depths") if args.depths else None
+    reference = None
+    if args.reference:
+        reference = load(args.reference)
+        if reference.ini is None:
+            raise InputError(f"{args.reference}: ini = missing: a --reference design needs an [ini] section")
+    doc = analyze(design, args.out, stride=stride, symmetry=args.symmetry, depths_diopters=depths,
+                  progress=not args.json, plots=not args.no_plots,
+                  reference=reference)
+    if args.json:
+        print(_dump(doc))
+        return 0
+    s = doc["summary"]
+    print(f"{doc['design']}: {s['subsystems_evaluated']} sub-systems x {s['fields_per_subsystem']} fields "
+          f"({s['rays_traced']} rays) in {s['wall_s']:.1f} s (trace {s['trace_s']:.1f} s)")
+    print(f"  GD (Eq. 11)  max {s['gd_max_deg']:.4f} deg, mean {s['gd_mean_deg']:.4f} deg "
+          f"({s['gd_within_target']} within {s['gd_target_deg']:g} deg)")
+    print(f"  PA (Eq. 12)  max {s['pa_max']:.4f}, mean {s['pa_mean']:.4f} "
+          f"({s['pa_within_target']} sub-systems within {s['pa_target']:g})")
+    print(f"  contrast at Nyquist {s['nyquist_cpd']:.2f} cpd: min {s['contrast_nyquist_min']:.3f}, "
+          f"mean {s['contrast_nyquist_mean']:.3f}")
+    for D, b in doc["by_depth"].items():
+        print(f"  CDP {D} D: contrast min {b['contrast_nyquist_min']:.3f} mean {b['contrast_nyquist_mean']:.3f}, "
+              f"RMS spot mean {b['rms_spot_mean_arcmin']:.3f}' max {b['rms_spot_max_arcmin']:.3f}', "
+              f"GD max {b['gd_max_deg']:.3f} deg, PA max {b['pa_max']:.3f}")
+    print(f"wrote {args.out}/metrics.json" + (", " + ", ".join(doc.get("plots", [])) if doc.get("plots") else ""))
+    return 0
+
+
+def cmd_optimize(args) -> int:
+    from pathlib import Path
+
+    from ..optimize.workflow import optimize
+
+    design = _load_design(args)
+    if design.optimize is None or not design.optimize.variables:
+        raise InputError(f"{args.design}: optimize.variables = missing: mark the variables in an [optimize] section")
+    stages = None
+    if args.stages:
+        from ..design.optimize_section import STAGES
+
+        stages = [s.strip() for s in args.stages.split(",") if s.strip()]
+        bad = [s for s in stages if s not in STAGES]
+        if bad or not stages:
+            raise InputError(f"--stages = {args.stages!r}: expected a comma-separated subset of {', '.join(STAGES)}")
+        if design.ini is None and stages != ["full"]:
+            raise InputError(f"--stages = {args.stages!r}: {args.design} has no [ini]: a plain lens has only \"full\"")
+    if args.iterations is not None and args.iterations < 1:
+        raise InputError(f"--iterations = {args.iterations}: must be >= 1")
+    stride = None if args.no_analyze else _int_pair(args.analyze_stride, "--analyze-stride")
+    quiet = args.json  # progress: a bar on a terminal, periodic lines in a log
+    log = (lambda *a, **k: None) if args.json else (lambda msg: print(msg, file=sys.stderr))
+    doc = optimize(design, args.out, stages=stages, iterations=args.iterations, solver=args.solver,
+                   resume=args.resume, progress=not quiet, log=log, analyze_stride=stride)
+    out = Path(args.out)
+    if args.json:
+        print(_dump(doc))
+        return 0
+    for r in doc["stages"]:
+        print(f"{r['stage']:15s} {len(r['variables']):3d} variables  merit {r['merit_start']:.6g} -> "
+              f"{r['merit_end']:.6g}  ({r['iterations']} iterations, {r['status']}, {r['seconds']:.1f} s)")
+    ba = doc.get("before_after", {})
+    for k, v in ba.items():
+        if isinstance(v.get("before"), float) and isinstance(v.get("after"), float):
+            print(f"  {k:24s} {v['before']:10.4f} -> {v['after']:10.4f}")
+    if "rms_spot_um" in ba:  # a plain lens: RMS spot per field (primary wavelength)
+        s = ba["rms_spot_um"]
+        for f, b, a in zip(s["fields"], s["before"], s["after"]):
+            shown = [("undefined" if v is None else f"{v:.3f} µm") for v in (b, a)]
+            print(f"  RMS spot at field {f:g}: {shown[0]} -> {shown[1]}")
+    print(f"wrote {out / doc['optimized_design']}, history.json, " + ", ".join(doc["plots"]))
+    return 0
+
+
+def register(sub) -> None:
+    """Add this module's verbs to the `lfsim` sub-command parser."""
+    ini = sub.add_parser("ini", help="InI-HMD first-order model (Eqs. 1-10) of a design or explicit inputs")
+    ini.add_argument("design", nargs="?", help="design file with an [ini] section")
+    ini.add_argument("--p-mla", type=float, help="lenslet pitch (mm)")
+    ini.add_argument("--g", type=float, help="display to MLA gap (mm)")
+    mla = ini.add_mutually_exclusive_group()
+    mla.add_argument("--l", type=float, help="MLA to intermediate CDP (mm; inf allowed)")
+    mla.add_argument("--f-mla", type=float, help="lenslet focal length (mm): l from 1/g + 1/l = 1/f")
+    ini.add_argument("--z-ic", type=float, help="intermediate CDP to eyepiece (mm)")
+    ini.add_argument("--d-mla-ep", type=float, help="MLA to eyepiece (mm), instead of --z-ic")
+    ini.add_argument("--cdp-diopters", type=float, help="virtual CDP depth (D; 0 = infinity), instead of --z-ic")
+    ini.add_argument("--z-xp", type=float, help="eyepiece to viewing window (mm)")
+    ini.add_argument("--f-ep", type=float, help="eyepiece focal length (mm)")
+    ini.add_argument("--m", type=int, help="lenslets along x")
+    ini.add_argument("--n", type=int, help="lenslets along y")
+    _add_set(ini)
+    ini.add_argument("--json", action="store_true")
+    ini.set_defaults(func=cmd_ini)
+
+    an = sub.add_parser("analyze", help="InI metrics (RMS, MTF, contrast, GD, PA, footprints) with plots")
+    an.add_argument("design")
+    an.add_argument("--out", required=True, help="output directory (metrics.json and PNGs)")
+    an.add_argument("--stride", help="evaluate every k-th lenslet: SX,SY (default from [ini.analysis])")
+    an.add_argument("--symmetry", choices=("none", "x", "y", "xy"), help="skip mirror-image lenslets")
+    an.add_argument("--depths", help="CDP depths to evaluate, diopters, comma separated (default all)")
+    an.add_argument("--reference", help="nominal design: GD and PA against its display layout and paraxial rays")
+    an.add_argument("--no-plots", action="store_true")
+    _add_set(an)
+    an.add_argument("--json", action="store_true")
+    an.set_defaults(func=cmd_analyze)
+
+    op = sub.add_parser("optimize", help="optimize a design's [optimize] variables against the light-field merit")
+    op.add_argument("design")
+    op.add_argument("--out", required=True, help="output directory (optimized design, history, plots, checkpoints)")
+    op.add_argument("--stages", help="comma-separated stages (default: the design's [optimize] stages)")
+    op.add_argument("--iterations", type=int, help="iterations per stage (default: the design's)")
+    op.add_argument("--solver", choices=("lm", "adam"), help="default: the design's")
+    op.add_argument("--resume", action="store_true", help="continue from the checkpoints in --out")
+    op.add_argument("--no-analyze", action="store_true", help="skip the before/after `analyze` runs")
+    op.add_argument("--analyze-stride", default="1,1", help="lenslet stride of the before/after analysis (1,1)")
+    _add_set(op)
+    op.add_argument("--json", action="store_true")
+    op.set_defaults(func=cmd_optimize)
