@@ -63,6 +63,7 @@ from ..ini.subsystems import field_grid, sample, trace_rays_jacobian
 from ..metrics import distortion, footprint, pupil, spot
 from ..metrics.spot import ARCMIN
 from ..optics.solids import prism_thickness, prisms
+from . import constraints
 
 LOST = 10.0  # residual of a lost ray (arcmin-equivalent)
 PRISM_POINTS = 9  # sample points per axis of a prism face's clear aperture (thickness)
@@ -303,45 +304,6 @@ class IniMerit:
         return self._crosstalk_surfaces(model) + self._tir_surfaces(model) + self._aperture_surfaces(model)
 
     @staticmethod
-    def _glass_pairs(model: IniModel) -> list[tuple[int, int, float]]:
-        """(front, back, radius) of each glass element of the display path outside the
-        lenslet array: a refracting surface into glass followed by a refracting one."""
-        surf = model.system.surfaces
-        names = model.tracer.names
-        out = []
-        for i in range(model.spec.viewing_window - 1):
-            a, b = surf[i], surf[i + 1]
-            if a.array is not None or b.array is not None or a.interaction != "refract":
-                continue
-            if b.interaction != "refract" or model.values0[names.index(f"{a.name}.index")] <= 1.0001:
-                continue
-            radii = [s.aperture.radius for s in (a, b) if s.aperture is not None and s.aperture.kind == "circular"]
-            if radii and a.global_position is None and b.global_position is None:
-                out.append((i, i + 1, max(radii)))
-        return out
-
-    @staticmethod
-    def _edge_thickness(model: IniModel, values, i: int, j: int, radius: float) -> float:
-        """Axial glass thickness between surfaces i and j at ``radius`` (sags from the
-        tracer's surface model with parameters ``values``); −inf where a sag is undefined."""
-        import drjit as dr
-
-        from ..optics.surfaces import sag
-
-        tr = model.tracer
-        T, names = tr.T, tr.names
-        P, block = tr.params(values=values), dr.zeros(T.UInt32, 1)
-
-        def z(k):
-            with dr.suspend_grad():
-                zz, _, _, inside = sag(T.Float(radius), T.Float(0.0), tr.shape(P, k, block))
-            return float(zz[0]) if bool(inside[0]) else math.nan
-
-        thick = float(values[names.index(f"{model.system.surfaces[i].name}.thickness")])
-        e = thick - z(i) + z(j)
-        return e if math.isfinite(e) else -math.inf
-
-    @staticmethod
     def _aperture_surfaces(model: IniModel) -> list[int]:
         """Surfaces of the display path with a clear aperture (outside the lenslet array)."""
         last = model.spec.viewing_window
@@ -366,7 +328,7 @@ class IniMerit:
         blocks: list[tuple[str, np.ndarray, np.ndarray | None]] = []
         K = st.K
         for block in (self._lost, self._spot, self._gd, self._pa, self._distortion, self._crosstalk, self._tir,
-                      self._apertures, self._efl, self._thickness, self._edge_thickness_block,
+                      self._apertures, self._efl, self._thickness, self._edge_thickness,
                       self._prism_thickness_block):
             for name, res, jac in block(st):
                 res = np.where(np.isfinite(res), res, 0.0)
@@ -590,58 +552,17 @@ class IniMerit:
 
     def _thickness(self, st: _Sample):
         """Centre thickness of variable glass thicknesses and air gaps below their minimum, µm."""
-        t, w, model = self.spec.targets, self.spec.weights, st.model
-        res_t, jac_t = [], []
-        for j_, c in enumerate(self.cols):
-            if c.state is not None or not c.name.endswith(".thickness"):
-                continue
-            sname = c.name[: -len(".thickness")]
-            i = [s.name for s in model.system.surfaces].index(sname)
-            glass = model.system.surfaces[i].interaction in ("refract", "tir") and \
-                model.values0[model.tracer.names.index(f"{sname}.index")] > 1.0001
-            lo = t.min_center_thickness if glass else t.min_air_gap
-            if lo is None:
-                continue
-            v = float(st.x[j_])
-            res_t.append(max(0.0, lo - v) * 1000.0 * w.thickness)
-            row = np.zeros(st.K)
-            if v < lo:
-                row[j_] = -1000.0 * w.thickness
-            jac_t.append(row)
-        if res_t:
-            yield "thickness", np.array(res_t), np.array(jac_t) if st.derivatives else None
+        m = st.model
+        yield from constraints.center_thickness(self.cols, st.x, m.system, m.tracer.names, m.values0,
+                                                self.spec.targets, self.spec.weights, st.K, st.derivatives)
 
-    def _edge_thickness_block(self, st: _Sample):
-        """Edge thickness of glass elements at their larger clear radius below its minimum,
-        µm (derivatives by central differences of the sags)."""
-        t, w, model, x = self.spec.targets, self.spec.weights, st.model, st.x
-        if t.min_edge_thickness is None:
-            return
-        pairs = self._glass_pairs(model)
-        if not pairs:
-            return
-        vals = model.values0
-        et = np.array([self._edge_thickness(model, vals, i, j, rad) for i, j, rad in pairs])
-        over = et < t.min_edge_thickness
-        jac = None
-        if st.derivatives:
-            names = model.tracer.names
-            jac = np.zeros((len(pairs), st.K))
-            for q, (i, j, rad) in enumerate(pairs):
-                if not over[q]:
-                    continue
-                own = {model.system.surfaces[i].name, model.system.surfaces[j].name}
-                for c_, col in enumerate(self.cols):
-                    if col.state is not None or col.name.split(".")[0] not in own:
-                        continue
-                    h = 1e-7 * max(1.0, abs(x[c_]))
-                    vp, vm = vals.copy(), vals.copy()
-                    vp[names.index(col.name)] += h
-                    vm[names.index(col.name)] -= h
-                    jac[q, c_] = -(self._edge_thickness(model, vp, i, j, rad)
-                                   - self._edge_thickness(model, vm, i, j, rad)) / (2 * h)
-            jac *= 1000.0 * w.thickness
-        yield "edge_thickness", np.where(over, t.min_edge_thickness - et, 0.0) * 1000.0 * w.thickness, jac
+    def _edge_thickness(self, st: _Sample):
+        """Edge thickness of glass elements (display path, outside the lenslet array) at
+        their larger clear radius below its minimum, µm."""
+        m = st.model
+        pairs = constraints.glass_pairs(m.system, m.tracer.names, m.values0, m.spec.viewing_window)
+        yield from constraints.edge_thickness_block(self.cols, st.x, m.tracer, m.values0, pairs, self.spec.targets,
+                                                    self.spec.weights, st.K, st.derivatives)
 
     def _prism_thickness_block(self, st: _Sample):
         """A prism's thickness between opposite faces (lfsim.optics.solids) below its
@@ -670,6 +591,13 @@ class IniMerit:
                 jac[:, geo] = np.where(over[:, None] & np.isfinite(d_th.T), -d_th.T, 0.0)
             jac *= 1000.0 * w.thickness
         yield "prism_thickness", np.where(over, t.min_prism_thickness - th, 0.0) * 1000.0 * w.thickness, jac
+
+    @staticmethod
+    def describe(details: dict) -> str:
+        """One line of the evaluation's figures for the run's log."""
+        gd, mean = details.get("gd_max_deg"), details.get("gd_mean_deg")
+        return (f"GD max {'undefined' if gd is None else f'{gd:.3f} deg'}, "
+                f"mean {'undefined' if mean is None else f'{mean:.3f} deg'} over the display")
 
     # Problem protocol
     def residuals(self, x) -> np.ndarray:

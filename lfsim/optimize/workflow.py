@@ -32,6 +32,7 @@ import numpy as np
 
 from ..design.design import Design
 from ..fileio import save_figure, write_json
+from .imaging import ImagingMerit
 from .merit import IniMerit, columns
 from .solvers import Bounds, CheckpointMismatch, adam, levenberg_marquardt
 
@@ -41,6 +42,8 @@ def stage_columns(design: Design, cols, stage: str):
     if stage in ("integrated", "full"):
         return list(cols)
     ini = design.ini
+    if ini is None:
+        raise ValueError(f"stage {stage!r} needs an InI design ([ini]); a plain lens has only \"full\"")
     mla_names = {design.system.surfaces[i].name for i in ini.mla_surfaces} | {ini.mla}
 
     def in_mla(c):
@@ -98,7 +101,8 @@ def optimize(design: Design, out_dir, stages=None, iterations: int | None = None
             continue
         stride = (1, 1) if stage == "full" else None
         t0 = time.perf_counter()
-        merit = IniMerit(current, spec, cols=cols, stride=stride)
+        merit = (IniMerit(current, spec, cols=cols, stride=stride) if current.ini is not None
+                 else ImagingMerit(current, spec, cols=cols))
         lo, hi = merit.bounds
         x0 = np.clip(merit.x0, lo, hi)
         r0, _, det0 = merit.evaluate(x0, derivatives=False)
@@ -138,8 +142,7 @@ def optimize(design: Design, out_dir, stages=None, iterations: int | None = None
                "history": res.history, "seconds": round(secs, 2)}
         doc["stages"].append(rec)
         log(f"stage {stage}: merit {rec['merit_start']:.6g} -> {rec['merit_end']:.6g} "
-            f"({res.status}, {res.iterations} iterations, {secs:.1f} s); "
-            f"GD max {det1['gd_max_deg']:.3f} deg, mean {det1['gd_mean_deg']:.3f} deg over the display")
+            f"({res.status}, {res.iterations} iterations, {secs:.1f} s); {merit.describe(det1)}")
     doc["seconds"] = round(time.perf_counter() - t_all, 2)
     stem = Path(design.path or "design").stem
     path = out / f"{stem}_optimized.toml"
@@ -156,7 +159,7 @@ def optimize(design: Design, out_dir, stages=None, iterations: int | None = None
     doc["optimized_design"] = path.name
     plot_history(doc, out / "merit_history.png")
     doc["plots"] = ["merit_history.png"]
-    if analyze_stride is not None:
+    if analyze_stride is not None and design.ini is not None:
         from ..analysis.ini_analysis import analyze
         from ..design import load
 
@@ -164,6 +167,15 @@ def optimize(design: Design, out_dir, stages=None, iterations: int | None = None
         after = analyze(load(path), out / "after", stride=analyze_stride, plots=True)
         doc["before_after"] = compare(before, after, out / "before_after.png")
         doc["before_after_stride"] = list(analyze_stride)
+        doc["plots"].append("before_after.png")
+    elif analyze_stride is not None:  # a plain lens: its layout and spot report before and after
+        from ..analysis.layout import layout_report
+        from ..design import load
+
+        before = layout_report(design, out / "before")
+        after = layout_report(load(path), out / "after")
+        unit = "°" if design.system.field_type == "angle" else " mm"
+        doc["before_after"] = compare_spots(before, after, out / "before_after.png", unit)
         doc["plots"].append("before_after.png")
     write_json(out / "history.json", doc)
     return doc
@@ -191,6 +203,34 @@ def plot_history(doc: dict, path) -> None:
     fig.tight_layout()
     save_figure(fig, path, dpi=110)
     plt.close(fig)
+
+
+def compare_spots(before: dict, after: dict, path, field_unit: str = "°") -> dict:
+    """Before/after RMS spot radius per field (µm) of two ``lfsim layout`` summaries, with a bar plot."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    def rms(doc):
+        return [r["rms_um"] for r in doc["spots"]]
+
+    fields = [r["field"] for r in before["spots"]]
+    b, a = rms(before), rms(after)
+    fig, ax = plt.subplots(figsize=(6, 3.4))
+    xs = np.arange(len(fields))
+    ax.bar(xs - 0.2, [v or 0.0 for v in b], 0.4, label="before")
+    ax.bar(xs + 0.2, [v or 0.0 for v in a], 0.4, label="after")
+    ax.set_xticks(xs, [f"{f:g}{field_unit}" for f in fields])
+    ax.set_xlabel("field")
+    ax.set_ylabel("RMS spot radius (µm, primary wavelength)")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3, axis="y")
+    fig.tight_layout()
+    save_figure(fig, path, dpi=110)
+    plt.close(fig)
+    return {"rms_spot_um": {"fields": fields, "before": b, "after": a},
+            "efl_mm": {"before": before["first_order"].get("efl"), "after": after["first_order"].get("efl")}}
 
 
 def compare(before: dict, after: dict, path) -> dict:

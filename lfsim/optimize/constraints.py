@@ -1,0 +1,107 @@
+"""Glass and air thickness constraints shared by the merit functions.
+
+Each block yields ``(name, residuals, Jacobian rows or None)`` like the
+residual blocks of :class:`lfsim.optimize.merit.IniMerit`: a hinge in µm
+(× the ``thickness`` weight) that is zero while the limit holds.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def is_glass(system, names, values, i: int) -> bool:
+    """Surface ``i`` refracts into a medium denser than air."""
+    s = system.surfaces[i]
+    return s.interaction in ("refract", "tir") and values[names.index(f"{s.name}.index")] > 1.0001
+
+
+def glass_pairs(system, names, values, last: int) -> list[tuple[int, int, float]]:
+    """(front, back, radius) of each glass element among surfaces ``0 … last − 1``
+    outside a lenslet array: a refracting surface into glass followed by a
+    refracting one, both axial (no ``global_position``), at the larger of their
+    circular clear radii."""
+    surf = system.surfaces
+    out = []
+    for i in range(last - 1):
+        a, b = surf[i], surf[i + 1]
+        if a.array is not None or b.array is not None or a.interaction != "refract":
+            continue
+        if b.interaction != "refract" or not is_glass(system, names, values, i):
+            continue
+        radii = [s.aperture.radius for s in (a, b) if s.aperture is not None and s.aperture.kind == "circular"]
+        if radii and a.global_position is None and b.global_position is None:
+            out.append((i, i + 1, max(radii)))
+    return out
+
+
+def edge_thickness(tracer, values, i: int, j: int, radius: float) -> float:
+    """Axial glass thickness between surfaces i and j at ``radius`` (sags from the
+    tracer's surface model with parameters ``values``); −inf where a sag is undefined."""
+    import drjit as dr
+
+    from ..optics.surfaces import sag
+
+    T, names = tracer.T, tracer.names
+    P, block = tracer.params(values=values), dr.zeros(T.UInt32, 1)
+
+    def z(k):
+        with dr.suspend_grad():
+            zz, _, _, inside = sag(T.Float(radius), T.Float(0.0), tracer.shape(P, k, block))
+        return float(zz[0]) if bool(inside[0]) else math.nan
+
+    thick = float(values[names.index(f"{tracer.system.surfaces[i].name}.thickness")])
+    e = thick - z(i) + z(j)
+    return e if math.isfinite(e) else -math.inf
+
+
+def center_thickness(cols, x, system, names, values, targets, weights, K: int, derivatives: bool):
+    """Variable centre thicknesses below ``min_center_thickness`` (glass) or
+    ``min_air_gap`` (air), µm."""
+    res_t, jac_t = [], []
+    surf_names = [s.name for s in system.surfaces]
+    for j_, c in enumerate(cols):
+        if c.state is not None or not c.name.endswith(".thickness"):
+            continue
+        i = surf_names.index(c.name[: -len(".thickness")])
+        lo = targets.min_center_thickness if is_glass(system, names, values, i) else targets.min_air_gap
+        if lo is None:
+            continue
+        v = float(x[j_])
+        res_t.append(max(0.0, lo - v) * 1000.0 * weights.thickness)
+        row = np.zeros(K)
+        if v < lo:
+            row[j_] = -1000.0 * weights.thickness
+        jac_t.append(row)
+    if res_t:
+        yield "thickness", np.array(res_t), np.array(jac_t) if derivatives else None
+
+
+def edge_thickness_block(cols, x, tracer, values, pairs, targets, weights, K: int, derivatives: bool):
+    """Edge thickness of the glass elements ``pairs`` below ``min_edge_thickness``,
+    µm; derivatives by central differences of the sags."""
+    if targets.min_edge_thickness is None or not pairs:
+        return
+    system, names = tracer.system, tracer.names
+    et = np.array([edge_thickness(tracer, values, i, j, rad) for i, j, rad in pairs])
+    over = et < targets.min_edge_thickness
+    jac = None
+    if derivatives:
+        jac = np.zeros((len(pairs), K))
+        for q, (i, j, rad) in enumerate(pairs):
+            if not over[q]:
+                continue
+            own = {system.surfaces[i].name, system.surfaces[j].name}
+            for c_, col in enumerate(cols):
+                if col.state is not None or col.name.split(".")[0] not in own:
+                    continue
+                h = 1e-7 * max(1.0, abs(x[c_]))
+                vp, vm = values.copy(), values.copy()
+                vp[names.index(col.name)] += h
+                vm[names.index(col.name)] -= h
+                jac[q, c_] = -(edge_thickness(tracer, vp, i, j, rad) - edge_thickness(tracer, vm, i, j, rad)) / (2 * h)
+        jac *= 1000.0 * weights.thickness
+    yield ("edge_thickness", np.where(over, targets.min_edge_thickness - et, 0.0) * 1000.0 * weights.thickness,
+           jac)
