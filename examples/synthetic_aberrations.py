@@ -142,7 +142,7 @@ def design_dict(geom: Geometry, inj: dict | None = None) -> dict:
     mla["thickness"] = geom.l - 0.5 * e
 
     def plate_flat(name, material, thickness):
-        return {"name": name, "radius": math.inf, "material": material, "thickness": thickness}
+        return {"name": name, "radius": math.inf, "material": material, "thickness": thickness, "virtual": True}
 
     pair_terms = {"asphere": {"A4": a4}, "xy": {"x2y1": kst}, "norm_radius": NORM_R}
     surfaces = [
@@ -168,6 +168,10 @@ def design_dict(geom: Geometry, inj: dict | None = None) -> dict:
     tl["thickness"] = 0.0
     ep["focal_length"] = f
     ep["thickness"] = f
+    # Zero-thickness plates are thin-element idealizations: a sagged face and its
+    # neighbours at one vertex are crossed "backwards" where the sag is negative.
+    for sf in surfaces[1:] + [tl]:
+        sf["virtual"] = True
     data["surfaces"] = surfaces + [tl, ep, vw]
     return data
 

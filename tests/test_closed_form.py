@@ -29,11 +29,17 @@ def test_paraboloid_mirror_focuses_parallel_rays(make_design):
         radius = inf
         dummy = true
     """)
-    o, dirs = _parallel_rays(55.0)
+    # The mirror's rim is 7.56 mm in front of its vertex: start the rays before it.
+    o, dirs = _parallel_rays(55.0, z0=-10.0)
     r = d.trace(o, dirs)
     assert np.all(r.status == 0)
     assert np.max(np.abs(r.positions[:, :2])) < 1e-9
     np.testing.assert_allclose(r.positions[:, 2], -100.0, atol=1e-12)
+    # From inside the bowl (z = -5), the rim rays would have to travel backwards to reach it.
+    o, dirs = _parallel_rays(55.0)
+    behind = d.trace(o, dirs).status
+    h = np.abs(np.concatenate([o[:41, 1], o[41:82, 0], o[82:, 0] * math.sqrt(2)]))
+    assert np.all(behind[h ** 2 / 400.0 > 5.0 + 1e-9] == Status.BEHIND) and np.all(behind[h ** 2 / 400.0 < 5.0] == 0)
     # Every ray travels the same optical path to a perfect focus (Fermat).
     assert np.ptp(r.opl) < 1e-9
     assert np.all(r.directions[:, 2] < 0)
@@ -199,3 +205,21 @@ def test_missed_and_vignetted_rays_are_flagged_without_nan(make_design):
     assert r.status.tolist() == [Status.OK, Status.VIGNETTED, Status.MISSED, Status.MISSED]
     for a in (r.positions, r.directions, r.opl):
         assert np.all(np.isfinite(a))
+
+
+def test_a_surface_behind_the_ray_is_flagged_unless_virtual(scenes, tmp_path):
+    """A ray aimed away from the lens (direction -z, in front of it) would reach every
+    surface backwards: status BEHIND at the first one; `virtual = true` lets it through."""
+    import lfsim
+
+    src = (scenes / "cooke_triplet.toml").read_text()
+    d = lfsim.load(scenes / "cooke_triplet.toml")
+    o = np.array([[0.0, 1.0, -10.0], [0.0, 1.0, -10.0]])
+    dirs = np.array([[0.0, 0.0, -1.0], [0.0, 0.0, 1.0]])
+    r = d.trace(o, dirs)
+    assert r.status.tolist() == [Status.BEHIND, Status.OK] and r.failed_at[0] == 0
+    assert np.all(np.isfinite(r.positions)) and r.opl[0] == 0.0  # the failed ray keeps its start
+    p = tmp_path / "virtual.toml"
+    p.write_text(src.replace('semi_diameter = 10.0\n', 'semi_diameter = 10.0\nvirtual = true\n', 1))
+    r = lfsim.load(p).trace(o[:1], dirs[:1])
+    assert r.status[0] == Status.BEHIND and r.failed_at[0] == 1  # now the second surface stops it

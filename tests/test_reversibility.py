@@ -37,8 +37,8 @@ tilt = [-38.0, 0.0, 0.0]
 name = "out"
 radius = -30.0
 thickness = 10.0
-global_position = [0.0, -9.0, 0.0]
-tilt = [90.0, 0.0, 0.0]
+global_position = [0.0, 9.0, 0.0]
+tilt = [-90.0, 0.0, 0.0]
 [[surfaces]]
 name = "image"
 dummy = true

@@ -41,6 +41,7 @@ class Status(IntEnum):
     NOT_CONVERGED = 4  # Newton iteration did not converge
     WRONG_LENSLET = 5  # crossed into a neighbouring lenslet's cell
     NO_TIR = 6  # refraction possible where total internal reflection was required
+    BEHIND = 7  # the surface lies behind the ray (it would travel backwards); not on virtual or dummy surfaces
 
 
 @dataclass
@@ -384,6 +385,10 @@ class SequentialTracer:
                                         self.newton_tol, self.newton_max_iter)
             fail(~ok, Status.MISSED, i)
             fail(ok & ~conv, Status.NOT_CONVERGED, i)
+            if not (s.virtual or s.interaction in ("none", "break")):
+                # A real surface is reached forwards (a rounding's worth of slack); dummy
+                # planes are references, reached along the ray's line either way.
+                fail(ok & (t < -self.const(self.newton_tol * 10.0)), Status.BEHIND, i)
             t = dr.select(ok, t, 0.0)
             hit = dr.fma(dl, t, pl)
 
