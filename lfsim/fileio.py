@@ -29,21 +29,43 @@ def atomic_path(path: str | Path):
             os.unlink(tmp)
 
 
+def check_replaceable(path: str | Path, manifest: str | None, flag: str = "--out") -> None:
+    """Refuse, before any work, to replace a folder that is not this kind of output.
+
+    A folder output replaces ``path`` as a whole, so ``path`` must be absent,
+    empty, or a previous output of the same kind (it holds ``manifest``, e.g.
+    ``index.json``): pointing ``--out`` at a home folder or a checkout must never
+    delete it. Raises a one-line ``ValueError`` naming ``flag``.
+    """
+    p = Path(path)
+    if not p.exists():
+        return
+    if not p.is_dir():
+        raise ValueError(f"{flag} = {str(path)!r}: exists and is not a folder")
+    if manifest is not None and (p / manifest).is_file():
+        return
+    if any(p.iterdir()):
+        what = f"no {manifest}" if manifest else "not empty"
+        raise ValueError(f"{flag} = {str(path)!r}: the folder exists and is not a previous output of this kind "
+                         f"({what}); the output replaces its folder, so give a new or empty folder")
+
+
 @contextmanager
-def atomic_dir(path: str | Path):
+def atomic_dir(path: str | Path, manifest: str | None = None, flag: str = "--out"):
     """Yield a new temporary folder beside ``path``; on success it replaces ``path``.
 
     A run that fails or is interrupted leaves an existing ``path`` exactly as it
     was (and removes its temporary folder); a reader of ``path`` sees the old
     folder or the new one, never a mixture. Only the final swap of the two
-    folders is not one atomic step: there ``path`` is briefly absent.
+    folders is not one atomic step: there ``path`` is briefly absent. An
+    existing ``path`` must be empty or hold ``manifest`` (see
+    :func:`check_replaceable`), checked on entry, before any work.
     """
     import shutil
 
+    check_replaceable(path, manifest, flag)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    if path.exists() and not path.is_dir():
-        raise NotADirectoryError(f"{path}: exists and is not a folder")
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
     os.chmod(tmp, 0o777 & ~_umask())
     try:

@@ -202,3 +202,44 @@ def test_progress_prints_lines_in_a_log():
     quiet = io.StringIO()
     LogBar(total=3, stream=quiet, interval=0.0, disable=True).update(3)
     assert quiet.getvalue() == ""
+
+
+def test_folder_outputs_never_replace_a_foreign_folder(scenes, tmp_path, capsys):
+    """Every verb whose --out is a folder replaces that folder as a whole, so a folder that is
+    not a previous output of the verb (here: one holding a user's file) is refused with one
+    line and exit 2, before any work, and left exactly as it was."""
+    foreign = tmp_path / "mine"
+    foreign.mkdir()
+    (foreign / "precious.txt").write_text("keep me")
+    exr = tmp_path / "a.exr"
+    from lfsim.render.focal_stack import write_exr
+
+    write_exr(exr, np.zeros((4, 4, 3), np.float32), {})
+    cases = {
+        "layout": ["layout", str(scenes / "cooke_triplet.toml"), "--out", str(foreign)],
+        "analyze": ["analyze", str(scenes / "ini_ideal.toml"), "--out", str(foreign), "--stride", "8,4"],
+        "focal-stack": ["focal-stack", str(scenes / "ini_ideal.toml"), "--out", str(foreign),
+                        "--resolution", "16,9", "--spp", "1"],
+        "compare": ["compare", str(exr), str(exr), "--out", str(foreign)],
+        "sweep": ["sweep", str(scenes / "ini_ideal.toml"), "--set", "mla.pitch_x=0.9:1.0:2", "--out", str(foreign),
+                  "--scheduler", "serial"],
+    }
+    for verb, argv in cases.items():
+        err = _fails_fast(capsys, argv, "--out")
+        assert "not a previous output" in err, (verb, err)
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["a.exr", "mine"], verb  # no temporary folders
+        assert [p.name for p in foreign.iterdir()] == ["precious.txt"], verb
+        assert (foreign / "precious.txt").read_text() == "keep me"
+
+
+def test_folder_output_is_replaced_whole_on_a_rerun(scenes, tmp_path, capsys):
+    out = tmp_path / "lay"
+    for _ in range(2):
+        assert main(["layout", str(scenes / "cooke_triplet.toml"), "--out", str(out)]) == 0
+    capsys.readouterr()
+    assert sorted(p.name for p in out.iterdir()) == ["layout.png", "spots.png", "summary.json"]
+    assert [p.name for p in tmp_path.iterdir()] == ["lay"]
+    # An empty folder is fine too.
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert main(["layout", str(scenes / "cooke_triplet.toml"), "--out", str(empty)]) == 0

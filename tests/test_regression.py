@@ -125,7 +125,7 @@ def test_regress_bad_input_exits_2(base, tmp_path, capsys):
         (["--baseline", str(base), "--set", "MLA.nope=1"], "MLA.nope"),
         (["--baseline", str(base), "--spp", "0"], "--spp = 0"),
         (["--baseline", str(base), "--update", "--junit", str(tmp_path / "j.xml")], "--junit"),
-        (["--baseline", str(tmp_path), "--update"], "not an lfsim baseline"),
+        (["--baseline", str(tmp_path), "--update"], "not a previous output of this kind (no baseline.json)"),
     ]
     (tmp_path / "keep.txt").write_text("a file that --update must not delete")
     for args, fragment in cases:

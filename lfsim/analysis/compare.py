@@ -235,10 +235,18 @@ def compare_paths(a, b, out_dir=None, log=None, limits: dict | None = None) -> d
     SSIM, largest RMSE and error), ``worst`` names the image with the lowest
     PSNR. ``limits`` (``min_psnr``, ``min_ssim``, ``max_abs``): the ones missed
     are listed in ``failed``. Every image is read and checked before anything
-    is written.
+    is written; ``out_dir`` is a folder replaced as a whole on success (see
+    :func:`lfsim.fileio.atomic_dir`).
     """
-    from ..fileio import write_json
+    import contextlib
 
+    from ..fileio import atomic_dir, write_json
+
+    with atomic_dir(out_dir, "compare.json") if out_dir is not None else contextlib.nullcontext() as tmp:
+        return _compare_paths(a, b, tmp, log, limits, write_json)
+
+
+def _compare_paths(a, b, out_dir, log, limits, write_json) -> dict:
     items = pairs(a, b)
     loaded = []
     for name, pa, pb in items:

@@ -334,13 +334,14 @@ def analyze(design, out_dir=None, stride=None, symmetry=None, depths_diopters=No
     ``depths_diopters`` restricts the CDP states (values from the design's
     list). ``reference``: a nominal Design whose display layout and paraxial
     rays GD and PA are measured against (see :func:`evaluate`). Returns the
-    metrics document (also written to ``out_dir``).
+    metrics document (also written to ``out_dir``, a folder replaced as a
+    whole on success: see :func:`lfsim.fileio.atomic_dir`).
     """
-    from pathlib import Path
-
-    from ..fileio import write_json
+    from ..fileio import atomic_dir, check_replaceable, write_json
     from . import ini_plots
 
+    if out_dir is not None:
+        check_replaceable(out_dir, "metrics.json")
     model = IniModel(design)
     ref = IniModel(reference) if reference is not None else model
     depths = None
@@ -358,9 +359,9 @@ def analyze(design, out_dir=None, stride=None, symmetry=None, depths_diopters=No
     if ref is not model:
         doc["reference"] = ref.file
     if out_dir is not None:
-        out = Path(out_dir)
-        if plots:
-            doc["plots"] = ini_plots.write_all(res, out)
-        doc["summary"]["wall_s"] = round(res["t_all"], 3)
-        write_json(out / "metrics.json", doc)
+        with atomic_dir(out_dir, "metrics.json") as out:
+            if plots:
+                doc["plots"] = ini_plots.write_all(res, out)
+            doc["summary"]["wall_s"] = round(res["t_all"], 3)
+            write_json(out / "metrics.json", doc)
     return doc

@@ -6,8 +6,6 @@ spot radius per field at the image surface, and two pictures.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
 from ..fileio import save_figure, write_json
@@ -128,8 +126,10 @@ def plot_spots(design, rows, spots, path):
 
 
 def layout_report(design, out_dir) -> dict:
-    """Write ``layout.png``, ``spots.png`` and ``summary.json`` into ``out_dir``."""
-    out = Path(out_dir)
+    """Write ``layout.png``, ``spots.png`` and ``summary.json`` into ``out_dir``
+    (a folder replaced as a whole on success: see :func:`lfsim.fileio.atomic_dir`)."""
+    from ..fileio import atomic_dir
+
     fo = design.first_order()
     rows, spots = spot_statistics(design, fo)
     summary = {
@@ -140,7 +140,8 @@ def layout_report(design, out_dir) -> dict:
         "spots": rows,
         "images": {"layout": "layout.png", "spots": "spots.png"},
     }
-    plot_layout(design, fo, out / "layout.png")
-    plot_spots(design, rows, spots, out / "spots.png")
-    write_json(out / "summary.json", summary)
+    with atomic_dir(out_dir, "summary.json") as out:
+        plot_layout(design, fo, out / "layout.png")
+        plot_spots(design, rows, spots, out / "spots.png")
+        write_json(out / "summary.json", summary)
     return summary

@@ -130,10 +130,12 @@ def load_images(folder, doc: dict) -> dict:
 
 def check_replaceable(folder) -> None:
     """Refuse to replace a path that is neither missing, an empty folder, nor a baseline folder."""
-    folder = Path(folder)
-    if folder.exists() and (not folder.is_dir() or (any(folder.iterdir())
-                                                     and not (folder / "baseline.json").is_file())):
-        raise BaselineError(f"{folder}: exists and is not an lfsim baseline folder; refusing to replace it")
+    from ..fileio import check_replaceable as check
+
+    try:
+        check(folder, "baseline.json", "--baseline")
+    except ValueError as e:
+        raise BaselineError(str(e)) from None
 
 
 def write(folder, doc: dict, images: dict, design_text: str | None = None) -> None:
@@ -146,7 +148,7 @@ def write(folder, doc: dict, images: dict, design_text: str | None = None) -> No
 
     folder = Path(folder)
     check_replaceable(folder)
-    with atomic_dir(folder) as tmp:
+    with atomic_dir(folder, "baseline.json", "--baseline") as tmp:
         recs = []
         focus = doc["options"]["focus_mm"]
         for (kind, i), imgs in sorted(images.items()):

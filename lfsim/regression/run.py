@@ -358,6 +358,10 @@ def check(design_path, baseline_dir, given: dict | None = None, out_dir=None, ju
     written). ``junit``: a path for JUnit XML.
     """
     t0 = time.perf_counter()
+    if out_dir is not None:
+        from ..fileio import check_replaceable
+
+        check_replaceable(out_dir, "report.json")
     folder = Path(baseline_dir)
     doc = bl.read(folder)
     given = {k: v for k, v in (given or {}).items() if v is not None}
@@ -488,12 +492,19 @@ def metric_checks(base: dict, cand: dict, tol: dict) -> list[Check]:
 
 
 def write_outputs(out_dir, result: RegressionResult, base_imgs: dict, r: Rendered, focus_b, heatmaps=True) -> dict:
-    """report.json, report.txt, the candidate's images and the heat maps (each written atomically)."""
+    """report.json, report.txt, the candidate's images and the heat maps, in a folder
+    replaced as a whole on success (see :func:`lfsim.fileio.atomic_dir`)."""
+    from ..fileio import atomic_dir
+
+    with atomic_dir(out_dir, "report.json") as out:
+        return _write_outputs(out, result, base_imgs, r, focus_b, heatmaps)
+
+
+def _write_outputs(out: Path, result: RegressionResult, base_imgs: dict, r: Rendered, focus_b, heatmaps) -> dict:
     from ..analysis.compare import compare_images, heatmap, json_safe
     from ..fileio import write_json, write_text
     from ..render.focal_stack import write_exr
 
-    out = Path(out_dir)
     files = {"report_json": "report.json", "report_txt": "report.txt", "images": [], "heatmaps": []}
     plain = []
     for (kind, i), imgs in sorted(r.images.items()):

@@ -140,7 +140,7 @@ def focal_stack(design, content, out_dir, spec: FocalStackSpec | None = None, pr
     """
     from ..fileio import atomic_dir
 
-    with atomic_dir(out_dir) as tmp:
+    with atomic_dir(out_dir, "index.json") as tmp:
         return _focal_stack(design, content, tmp, spec, progress, log)
 
 

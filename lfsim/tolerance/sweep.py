@@ -146,7 +146,11 @@ def run_sweep(design: Design, out_dir, axes: dict[str, np.ndarray], fixed: dict[
               stride=None, reference: str | None = None, render: bool = False, render_spec=None,
               content=None, scheduler: str | None = None, workers: int | None = None, serial: bool = False,
               batch: int = 1, progress: bool = False, log=None) -> dict:
-    """Evaluate the grid; write ``sweep.json``, ``sweep.csv``, ``sweep.png`` (and focal stacks)."""
+    """Evaluate the grid; write ``sweep.json``, ``sweep.csv``, ``sweep.png`` (and focal stacks)
+    into ``out_dir``, a folder replaced as a whole on success (see :func:`lfsim.fileio.atomic_dir`)."""
+    from ..fileio import atomic_dir, check_replaceable
+
+    check_replaceable(out_dir, "sweep.json")
     if not axes:
         raise ValueError("--set KEY=START:STOP:COUNT: give at least one axis to sweep")
     if design.ini is None:
@@ -160,7 +164,6 @@ def run_sweep(design: Design, out_dir, axes: dict[str, np.ndarray], fixed: dict[
     Design.from_dict(raw, path)
     pts = grid(axes)
     Design.from_dict(apply_overrides(raw, pts[0], path), path)  # an unknown key is bad input, not a bad point
-    out = Path(out_dir)
     units = [(f"pt:{i}", p) for i, p in enumerate(pts)]
     records: dict[str, dict] = {}
     bar = None
@@ -194,6 +197,13 @@ def run_sweep(design: Design, out_dir, axes: dict[str, np.ndarray], fixed: dict[
         r = records[f"pt:{i}"]
         points.append({"index": i, "values": p, "metrics": r["metrics"], "error": r["error"],
                        "seconds": r["seconds"]})
+    with atomic_dir(out_dir, "sweep.json") as out:
+        return _write(design, out, raw, path, axes, keys, fixed, reference, points, seconds, where, render,
+                      render_spec, content)
+
+
+def _write(design, out, raw, path, axes, keys, fixed, reference, points, seconds, where, render, render_spec,
+           content) -> dict:
     if render:
         from ..render.focal_stack import focal_stack
 
