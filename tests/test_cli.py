@@ -3,6 +3,7 @@
 import json
 
 import numpy as np
+import pytest
 
 from lfsim.cli import main
 
@@ -59,6 +60,8 @@ def test_layout_writes_pictures_and_summary(scenes, tmp_path, capsys):
     assert len(rms) == 3 and all(0 < v < 50 for v in rms)
     assert not list(out.glob(".*"))  # no temporary files left behind
     assert np.isfinite(s["first_order"]["efl"])
+    # The spot diagrams' Airy circle: radius 1.22 λ F/# at the primary wavelength (µm).
+    assert s["airy_radius_um"] == pytest.approx(1.22 * 0.5875618 * s["first_order"]["fno"], rel=1e-12)
 
 
 def test_trace_reports_lenslets_for_arrays(tmp_path, capsys):

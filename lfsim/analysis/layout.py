@@ -6,6 +6,8 @@ spot radius per field at the image surface, and two pictures.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..fileio import save_figure, write_json
@@ -102,16 +104,37 @@ def plot_layout(design, fo, path, rays_per_field: int = 7):
     plt.close(fig)
 
 
-def plot_spots(design, rows, spots, path):
+def wavelength_colour(nm: float):
+    """An RGB colour for a wavelength (nm), for plots: matplotlib's turbo map over 400–700 nm."""
+    import matplotlib
+
+    return matplotlib.colormaps["turbo"](float(np.clip((nm - 400.0) / 300.0, 0.0, 1.0)))
+
+
+def plot_spots(design, rows, spots, path, airy_um: float | None = None):
+    """One panel per field: every design wavelength's spot about the primary chief ray,
+    and the Airy disc of the primary wavelength (radius 1.22 λ F/#) dashed.
+
+    ``spots``: ``{wavelength_nm: [points (K, 2) mm per field]}``.
+    """
     plt = _figure()
-    n = len(spots)
-    fig, axes = plt.subplots(1, n, figsize=(3.2 * n, 3.4), squeeze=False)
-    for ax, row, pts in zip(axes[0], rows, spots):
-        if len(pts):
-            ax.plot(1e3 * pts[:, 0], 1e3 * pts[:, 1], ".", ms=2)
-            lim = max(1e3 * np.max(np.abs(pts)), 1e-3) * 1.15
-            ax.set_xlim(-lim, lim)
-            ax.set_ylim(-lim, lim)
+    n = len(rows)
+    fig, axes = plt.subplots(1, n, figsize=(3.2 * n, 3.6), squeeze=False)
+    for f, (ax, row) in enumerate(zip(axes[0], rows)):
+        lim = 1e-3
+        for lam, per_field in spots.items():
+            pts = per_field[f]
+            if len(pts):
+                ax.plot(1e3 * pts[:, 0], 1e3 * pts[:, 1], ".", ms=2, color=wavelength_colour(lam),
+                        label=f"{lam:g} nm")
+                lim = max(lim, 1e3 * np.max(np.abs(pts)))
+        if airy_um is not None and np.isfinite(airy_um):
+            t = np.linspace(0.0, 2.0 * np.pi, 181)
+            ax.plot(airy_um * np.cos(t), airy_um * np.sin(t), "k--", lw=0.8, label=f"Airy r = {airy_um:.2f} µm")
+            lim = max(lim, airy_um)
+        lim *= 1.15
+        ax.set_xlim(-lim, lim)
+        ax.set_ylim(-lim, lim)
         ax.set_aspect("equal")
         unit = "°" if design.system.field_type == "angle" else " mm"
         rms = "n/a" if row["rms_um"] is None else f"{row['rms_um']:.2f} µm"
@@ -119,7 +142,12 @@ def plot_spots(design, rows, spots, path):
         ax.set_xlabel("x (µm)")
         ax.grid(alpha=0.3)
     axes[0][0].set_ylabel("y (µm)")
-    fig.suptitle(f"{design.name}: spot diagrams at the image surface", fontsize=10)
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    if handles:
+        fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=8, markerscale=4,
+                   frameon=False, bbox_to_anchor=(0.5, -0.1))
+    fig.suptitle(f"{design.name}: spot diagrams at the image surface, about the "
+                 f"{design.system.primary_wavelength_nm:g} nm chief ray (RMS at that wavelength)", fontsize=10)
     fig.tight_layout()
     save_figure(fig, path, dpi=130, bbox_inches="tight")
     plt.close(fig)
@@ -132,16 +160,25 @@ def layout_report(design, out_dir) -> dict:
 
     fo = design.first_order()
     rows, spots = spot_statistics(design, fo)
+    by_wl = {}
+    for lam in design.system.wavelengths_nm:  # every wavelength about the primary chief ray
+        r_l, s_l = spot_statistics(design, fo, wavelength_nm=lam)
+        by_wl[lam] = [pts + ([a["chief_x_mm"] - b["chief_x_mm"], a["chief_y_mm"] - b["chief_y_mm"]]
+                             if a["chief_x_mm"] is not None and b["chief_x_mm"] is not None else np.nan)
+                      for pts, a, b in zip(s_l, r_l, rows)]
+    lam0 = design.system.primary_wavelength_nm
+    airy_um = 1.22 * lam0 * 1e-3 * fo.fno if fo.fno is not None and math.isfinite(fo.fno) else None
     summary = {
         "design": design.name,
         "file": design.path,
         "wavelength_nm": design.system.primary_wavelength_nm,
         "first_order": fo.as_dict(),
         "spots": rows,
+        "airy_radius_um": airy_um,
         "images": {"layout": "layout.png", "spots": "spots.png"},
     }
     with atomic_dir(out_dir, "summary.json") as out:
         plot_layout(design, fo, out / "layout.png")
-        plot_spots(design, rows, spots, out / "spots.png")
+        plot_spots(design, rows, by_wl, out / "spots.png", airy_um)
         write_json(out / "summary.json", summary)
     return summary
