@@ -48,7 +48,7 @@ import numpy as np
 from ..design.design import Design
 from ..optics.sampling import field_rays
 from . import constraints
-from .merit import LOST, columns
+from .merit import LOST, columns, stack_blocks
 
 FD_STEP = 1e-6  # relative central-difference step of the first-order dependences
 
@@ -106,7 +106,7 @@ class ImagingMerit:
         pts, self.w_pupil = polar_pupil(int(pupil_rings or spec.pupil))
         self.rho = np.concatenate([np.zeros((1, 2)), pts])  # the chief ray first
         self.fields = list(sysm.fields)
-        self.efl0 = design.first_order().efl
+        self.efl0 = self._starts(design)[2]  # the same (paraxial) focal length the merit evaluates
         t = spec.targets
         self.efl_target = t.efl_mm if t.efl_mm is not None and math.isfinite(t.efl_mm) else self.efl0
         if self.efl_target is None or not math.isfinite(self.efl_target):
@@ -115,7 +115,7 @@ class ImagingMerit:
         self.R_img = R_img[:, :2]
         self.pairs = constraints.glass_pairs(sysm, self.names, self.base[self.primary], len(sysm.surfaces))
         self.evaluations = 0
-        self._designs: dict[bytes, Design] = {}
+        self._design = None  # (x bytes, Design) of the last point
         self.layout: list[tuple[str, int]] = []
 
     # ------------------------------------------------------------ designs
@@ -124,21 +124,19 @@ class ImagingMerit:
         return (np.array([c.lower for c in self.cols]), np.array([c.upper for c in self.cols]))
 
     def design_at(self, x) -> Design:
-        """The design with the variables set to ``x`` (validated like a file; the
-        last few are kept, since a damped least-squares step evaluates a trial point
-        and then its Jacobian)."""
+        """The design with the variables set to ``x`` (validated like a file). The last
+        one is kept: a damped least-squares step evaluates a trial point and then, once
+        accepted, its Jacobian."""
+        key = np.asarray(x, dtype=np.float64).tobytes()
+        if self._design is None or self._design[0] != key:
+            self._design = (key, self._build(x))
+        return self._design[1]
+
+    def _build(self, x) -> Design:
         from ..design.writer import apply_values
 
-        x = np.asarray(x, dtype=np.float64)
-        key = x.tobytes()
-        d = self._designs.get(key)
-        if d is None:
-            raw = apply_values(self.design0.raw, {c.name: float(v) for c, v in zip(self.cols, x)})
-            d = Design.from_dict(raw, self.design0.path or "<dict>")
-            if len(self._designs) > 2 * len(self.cols) + 4:
-                self._designs.clear()
-            self._designs[key] = d
-        return d
+        raw = apply_values(self.design0.raw, {c.name: float(v) for c, v in zip(self.cols, np.asarray(x, float))})
+        return Design.from_dict(raw, self.design0.path or "<dict>")
 
     def _values(self, x) -> np.ndarray:
         v = self.base.copy()
@@ -167,20 +165,16 @@ class ImagingMerit:
             for k in range(K):
                 e = np.zeros_like(x)
                 e[k] = steps[k]
-                Op, Dp, fp = self._starts(self.design_at(x + e))
-                Om, Dm, fm = self._starts(self.design_at(x - e))
+                Op, Dp, fp = self._starts(self._build(x + e))  # first-order only: not kept
+                Om, Dm, fm = self._starts(self._build(x - e))
                 dO[k], dD[k] = (Op - Om) / (2 * steps[k]), (Dp - Dm) / (2 * steps[k])
                 defl[k] = (fp - fm) / (2 * steps[k]) if efl is not None and math.isfinite(efl) else 0.0
         xy, dxy, ok = self._trace(self._values(x), O, D, dO, dD, K)
         t, w = self.spec.targets, self.spec.weights
         Fn, W, R = ok.shape
         blocks = []
-
-        def add(name, res, jac):
-            res = np.where(np.isfinite(res), res, 0.0).ravel()
-            blocks.append((name, res, None if jac is None else np.where(np.isfinite(jac), jac, 0.0).reshape(-1, K)))
-
-        add("lost", (~ok).astype(np.float64) * LOST, np.zeros((ok.size, K)) if derivatives else None)
+        add = blocks.append
+        add(("lost", (~ok).astype(np.float64) * LOST, np.zeros((ok.size, K)) if derivatives else None))
         chief_ok = ok[:, self.primary, 0]  # (F,)
         rel = xy[:, :, 1:] - xy[:, self.primary, 0][:, None, None]  # (F, W, Q, 2) mm
         use = ok[:, :, 1:] & chief_ok[:, None, None]
@@ -190,22 +184,17 @@ class ImagingMerit:
         if derivatives:
             drel = dxy[:, :, 1:] - dxy[:, self.primary, 0][:, None, None]
             jac = np.where(use[..., None, None], sw[..., None] * drel * scale, 0.0)
-        add("spot", np.where(use[..., None], sw * rel * scale, 0.0), jac)
+        add(("spot", np.where(use[..., None], sw * rel * scale, 0.0), jac))
         if self.efl_target is not None and efl is not None and math.isfinite(efl):
             tgt = self.efl_target
-            add("efl", np.array([(efl - tgt) / tgt * 100.0 * w.efl]),
-                (defl / tgt * 100.0 * w.efl)[None] if derivatives else None)
+            add(("efl", np.array([(efl - tgt) / tgt * 100.0 * w.efl]),
+                 (defl / tgt * 100.0 * w.efl)[None] if derivatives else None))
         values = self._values(x)[self.primary]
-        for block in (constraints.center_thickness(self.cols, x, self.design0.system, self.names, values, t, w, K,
-                                                   derivatives),
-                      constraints.edge_thickness_block(self.cols, x, self.tracer, values, self.pairs, t, w, K,
-                                                       derivatives)):
-            for name, res, jac in block:
-                add(name, res, jac)
-        self.layout = [(name, res.size) for name, res, _ in blocks]
-        r_all = np.concatenate([b[1] for b in blocks])
-        J_all = np.concatenate([b[2] for b in blocks]) if derivatives else None
-        details = {name: float(np.sum(res ** 2)) for name, res, _ in blocks}
+        blocks += constraints.center_thickness(self.cols, x, self.design0.system, self.names, values, t, w, K,
+                                               derivatives)
+        blocks += constraints.edge_thickness_block(self.cols, x, self.tracer, values, self.pairs, t, w, K,
+                                                   derivatives)
+        r_all, J_all, details, self.layout = stack_blocks(blocks, K, derivatives)
         # RMS spot radius per field (µm), polychromatic, about the primary chief ray.
         wq = self.w_pupil[None, None, :] * use
         ms = np.sum(wq * np.sum(rel ** 2, axis=-1), axis=(1, 2)) / np.maximum(np.sum(wq, axis=(1, 2)), 1e-300)

@@ -125,6 +125,21 @@ class _Sample:
     figures: dict = field(default_factory=dict)
 
 
+def stack_blocks(blocks, K: int, derivatives: bool):
+    """Residual blocks ``(name, residuals, Jacobian rows or None)`` → (residuals (M,),
+    Jacobian (M, K) or None, the sum of squares per block, [(name, size)]); entries
+    that are not finite count as 0 (no NaN reaches a solver)."""
+    names, res, jacs = [], [], []
+    for name, r, j in blocks:
+        names.append(name)
+        res.append(np.where(np.isfinite(r), r, 0.0).ravel())
+        if derivatives:
+            jacs.append(np.where(np.isfinite(j), j, 0.0).reshape(-1, K))
+    details = {n: float(np.sum(r ** 2)) for n, r in zip(names, res)}
+    return (np.concatenate(res), np.concatenate(jacs) if derivatives else None, details,
+            [(n, r.size) for n, r in zip(names, res)])
+
+
 def columns(design: Design, spec) -> list[Column]:
     """Expand the ``[optimize]`` variables into columns ("tunable" → one per state)."""
     out = []
@@ -325,19 +340,10 @@ class IniMerit:
         """(residuals (M,), Jacobian (M, K) or None, details dict)."""
         self.evaluations += 1
         st = self._sample(x, derivatives)
-        blocks: list[tuple[str, np.ndarray, np.ndarray | None]] = []
-        K = st.K
-        for block in (self._lost, self._spot, self._gd, self._pa, self._distortion, self._crosstalk, self._tir,
-                      self._apertures, self._efl, self._thickness, self._edge_thickness,
-                      self._prism_thickness_block):
-            for name, res, jac in block(st):
-                res = np.where(np.isfinite(res), res, 0.0)
-                blocks.append((name, res.ravel(), None if jac is None else
-                               np.where(np.isfinite(jac), jac, 0.0).reshape(-1, K)))
-        self.layout = [(name, res.size) for name, res, _ in blocks]
-        r_all = np.concatenate([b[1] for b in blocks])
-        J_all = np.concatenate([b[2] for b in blocks]) if derivatives else None
-        details = {name: float(np.sum(res ** 2)) for name, res, _ in blocks}
+        blocks = (self._lost, self._spot, self._gd, self._pa, self._distortion, self._crosstalk, self._tir,
+                  self._apertures, self._efl, self._thickness, self._edge_thickness, self._prism_thickness_block)
+        r_all, J_all, details, self.layout = stack_blocks((b for block in blocks for b in block(st)), st.K,
+                                                          derivatives)
         fig = st.figures
         okc, pa_ok, spot_ok = fig["gd_ok"], fig["pa_ok"], fig["spot_ok"]
         gd, pa_f, rms, gw = fig["gd"], fig["pa"], fig["rms"], st.grid_weights
