@@ -223,7 +223,7 @@ def compare_spots(before: dict, after: dict, path, field_unit: str = "°") -> di
     ax.bar(xs + 0.2, [v or 0.0 for v in a], 0.4, label="after")
     ax.set_xticks(xs, [f"{f:g}{field_unit}" for f in fields])
     ax.set_xlabel("field")
-    ax.set_ylabel("RMS spot radius (µm, primary wavelength)")
+    ax.set_ylabel("RMS spot (µm, primary λ)")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3, axis="y")
     fig.tight_layout()
