@@ -10,7 +10,7 @@ import argparse
 import math
 import sys
 
-from .. import __version__
+from .. import __version__, budget
 from ..backend import BackendError
 from ..design import DesignError
 from . import ini, optics, render, tolerance
@@ -46,7 +46,8 @@ def main(argv=None) -> int:
               file=sys.stderr)
         return 2
     try:
-        return args.func(args)
+        with budget.use(budget.Limits.from_args(args)):
+            return args.func(args)
     except (DesignError, InputError, BackendError) as e:
         print(f"lfsim: error: {e}", file=sys.stderr)
         return 2

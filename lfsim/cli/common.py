@@ -44,9 +44,9 @@ def _check_seed(seed: int, end: int = 2 ** 32) -> None:
         raise InputError(f"--seed = {seed}: must be an integer in [0, {end})")
 
 
-def _fmt(v, spec: str, unit: str = "") -> str:
-    """A number with its unit, or "undefined" for a quantity that is not finite (None)."""
-    return "undefined" if v is None else f"{format(v, spec)} {unit}".rstrip()
+def _fmt(v, spec: str, unit: str = "", none: str = "undefined") -> str:
+    """A number with its unit, or ``none`` ("undefined": a quantity that is not finite) for None."""
+    return none if v is None else f"{format(v, spec)} {unit}".rstrip()
 
 
 def _int_pair(text, flag):

@@ -5,8 +5,9 @@ from __future__ import annotations
 import math
 import sys
 
+from .. import budget
 from ..fileio import check_writable as _writable
-from .common import DEFAULT_CONTENT, InputError, _add_set, _check_seed, _dump, _float_list, _int_pair, _view_of
+from .common import DEFAULT_CONTENT, InputError, _add_set, _check_seed, _dump, _float_list, _fmt, _int_pair, _view_of
 
 
 def cmd_focal_stack(args) -> int:
@@ -31,7 +32,8 @@ def cmd_focal_stack(args) -> int:
         print(_dump(doc))
         return 0
     print(f"{Path(design_path).name} + {Path(args.content).name}: CDP {cdp:g} mm "
-          f"(tunable lens {doc['tunable_power_diopters']}), {pupil:g} mm pupil, {spec.spp} spp, "
+          f"(tunable lens {_fmt(doc['tunable_power_diopters'], '+.4f', 'D', none='none')}), {pupil:g} mm pupil, "
+          f"{spec.spp} spp, "
           f"{doc['resolution'][0]}x{doc['resolution'][1]} px, {doc['total_s']:.1f} s -> {args.out}")
     for im in doc["images"]:
         ssim = (f"SSIM {im['ssim_vs_natural']:.3f}, PSNR {im['psnr_vs_natural']:.1f} dB"
@@ -189,6 +191,7 @@ def register(sub) -> None:
     fs.add_argument("--tessellation", type=float, default=1.0,
                     help="mesh density as a multiple of the defaults (--optics mesh; default 1)")
     fs.add_argument("--out", default="renders/focal_stack", help="output directory (default renders/focal_stack)")
+    budget.add_flags(fs)
     _add_set(fs)
     fs.add_argument("--json", action="store_true")
     fs.set_defaults(func=cmd_focal_stack)
@@ -228,6 +231,7 @@ def register(sub) -> None:
     gcp.add_argument("--tolerance", type=float, default=0.02,
                      help="largest relative error of an interior parameter (default 0.02); exit 1 beyond")
     gcp.add_argument("--mla-cells", choices=("per_surface", "fixed"), default="per_surface")
+    budget.add_flags(gcp)
     _add_set(gcp)
     gcp.add_argument("--json", action="store_true")
     gcp.set_defaults(func=cmd_gradcheck)
@@ -267,6 +271,7 @@ def register(sub) -> None:
     rg.add_argument("--stride", help="lenslet stride SX,SY of the design metrics (default from [ini.analysis])")
     rg.add_argument("--depths", help="CDP depths (D) of the design metrics, comma separated (default all)")
     rg.add_argument("--no-metrics", action="store_true", help="images only (no design metrics)")
+    budget.add_flags(rg)
     _add_set(rg)
     rg.add_argument("--json", action="store_true")
     rg.set_defaults(func=cmd_regress)

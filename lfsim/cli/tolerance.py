@@ -2,8 +2,16 @@
 
 from __future__ import annotations
 
+import sys
+
+from .. import budget
 from ..fileio import check_writable as _writable
 from .common import DEFAULT_CONTENT, InputError, _add_dask, _add_set, _dump, _int_pair, _load_design, _scheduler_args
+
+
+def _log(args):
+    """Estimates and notes on standard error; nothing under --json."""
+    return (lambda msg: None) if args.json else (lambda msg: print(msg, file=sys.stderr, flush=True))
 
 
 def cmd_tolerance(args) -> int:
@@ -20,7 +28,7 @@ def cmd_tolerance(args) -> int:
         doc = run_tolerance(design, args.out, trials=args.trials, seed=args.seed, scheduler=sched, workers=workers,
                             serial=serial, resume=args.resume, batch=args.batch,
                             sensitivity=not args.no_sensitivity, plots=not args.no_plots,
-                            progress=not args.json)
+                            progress=not args.json, log=_log(args))
     except RunMismatch as e:
         raise InputError(str(e)) from None
     if args.json:
@@ -72,7 +80,7 @@ def cmd_sweep(args) -> int:
                               resolution=_int_pair(args.resolution, "--resolution"), focus_cues=False)
     doc = run_sweep(design, args.out, axes, fixed, stride=stride, reference=args.reference, render=args.render,
                     render_spec=spec, content=content, scheduler=sched, workers=workers, serial=serial,
-                    batch=args.batch, progress=not args.json)
+                    batch=args.batch, progress=not args.json, log=_log(args))
     if args.json:
         print(_dump(doc))
         return 0
@@ -104,6 +112,7 @@ def register(sub) -> None:
     tol.add_argument("--no-sensitivity", action="store_true", help="skip the ± limit runs of each tolerance")
     tol.add_argument("--no-plots", action="store_true")
     _add_dask(tol)
+    budget.add_flags(tol)
     _add_set(tol)
     tol.add_argument("--json", action="store_true")
     tol.set_defaults(func=cmd_tolerance)
@@ -125,5 +134,6 @@ def register(sub) -> None:
     sw.add_argument("--resolution", default="160,84", help="W,H of the --render retinal images (160,84)")
     sw.add_argument("--batch", type=int, default=1, help="points per Dask task (1)")
     _add_dask(sw)
+    budget.add_flags(sw)
     sw.add_argument("--json", action="store_true")
     sw.set_defaults(func=cmd_sweep)

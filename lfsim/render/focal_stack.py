@@ -122,8 +122,32 @@ def render(scene_dict, sensor: dict | None = None) -> tuple[np.ndarray, float]:
     return img, time.perf_counter() - t0
 
 
+def estimate(spec: FocalStackSpec, resolution: tuple[int, int], display_px: int):
+    """The run time and peak memory of a focal stack (:class:`lfsim.budget.Estimate`), before it starts.
+
+    ``resolution``: the retinal images' (W, H); ``display_px``: pixels of the
+    elemental images. Throughputs: :data:`lfsim.budget.RATES`, scaled by Dr.Jit's threads.
+    """
+    from .. import budget
+
+    W, H = resolution
+    n = len(spec.focus_mm)
+    samples = W * H * spec.spp
+    rate = budget.threads() * budget.RATES["display_mesh" if spec.optics == "mesh" else "display_analytic"]
+    nat = budget.threads() * budget.RATES["natural"]
+    seconds = (n * samples / rate + ((n + 1) * samples / nat if spec.natural else 0.0)
+               + display_px * spec.ei_samples / (budget.threads() * budget.RATES["elemental_px"])
+               + (2 * n + 1) * W * H * budget.POST_S_PER_PX)
+    images = 2 * n + 1 if spec.natural else n
+    nbytes = budget.BASE_BYTES + W * H * budget.BYTES_PER_PX * max(1.0, images / 4) \
+        + display_px * budget.BYTES_PER_DISPLAY_PX
+    what = (f"focal stack of {images} images at {W}x{H} px x {spec.spp} spp ({budget.count(images * samples)} samples, "
+            f"{spec.optics} optics) from {budget.count(display_px)} display px")
+    return budget.Estimate(what, seconds, nbytes)
+
+
 def focal_stack(design, content, out_dir, spec: FocalStackSpec | None = None, progress: bool = False,
-                log=print) -> tuple[dict, dict]:
+                log=print, limits=None) -> tuple[dict, dict]:
     """Render a focal stack and analyse its focus cues; writes ``out_dir`` (what
     ``lfsim focal-stack`` writes: the EXRs and PNGs, the contact sheet,
     ``focus_cues.json``/``.png`` unless ``spec.focus_cues`` is off, and
@@ -136,15 +160,18 @@ def focal_stack(design, content, out_dir, spec: FocalStackSpec | None = None, pr
 
     The stack is written into a temporary folder beside ``out_dir`` that
     replaces it only on success: a failed or interrupted render leaves an
-    existing ``out_dir`` as it was.
+    existing ``out_dir`` as it was. ``limits`` (:class:`lfsim.budget.Limits`):
+    a stack estimated beyond them is refused before any rendering
+    (:func:`estimate`), and a long one's estimate is logged first.
     """
     from ..fileio import atomic_dir
 
     with atomic_dir(out_dir, "index.json") as tmp:
-        return _focal_stack(design, content, tmp, spec, progress, log)
+        return _focal_stack(design, content, tmp, spec, progress, log, limits)
 
 
-def _focal_stack(design, content, out_dir, spec, progress, log):
+def _focal_stack(design, content, out_dir, spec, progress, log, limits=None):
+    from .. import budget
     from ..fileio import write_json
     from ..ini.model import model_at_depth
     from .analytic import ReverseOptics
@@ -166,6 +193,8 @@ def _focal_stack(design, content, out_dir, spec, progress, log):
     layout = DisplayLayout.from_model(model, 0)
     fx, fy = state.fov_deg
     W, H = spec.resolution or (512, max(1, int(round(512 * fy / fx))))
+    budget.check(estimate(spec, (W, H), layout.width * layout.height), limits, log,
+                 hint="lower --resolution or --spp")
     content_scene = mi.load_dict(scene_dict(content))
 
     bar = None

@@ -69,13 +69,51 @@ def batches(units: list, batch: int) -> list[list]:
     return [units[i:i + batch] for i in range(0, len(units), max(1, int(batch)))]
 
 
+#: Runs of at least this many units time two of them here first (:func:`probe`).
+PROBE_AFTER = 8
+#: Bytes this process holds per unit record (the record store and the summary).
+BYTES_PER_RECORD = 4096.0
+
+
+def probe(job: dict, units: list, on_records, what: str, limits=None, log=None) -> list:
+    """Evaluate the first two units here, timed, and refuse a run whose estimate is beyond ``limits``.
+
+    The first unit pays for the kernel compiles; the second one's time,
+    times the units left, is the estimate (:mod:`lfsim.budget`; a local
+    cluster's workers share this machine's cores, so together they are about
+    as fast as this process), printed to ``log`` when long. Returns the units left to run. Runs of fewer than
+    :data:`PROBE_AFTER` units are not probed.
+    """
+    import time
+
+    from .. import budget
+
+    if len(units) < PROBE_AFTER:
+        return units
+    on_records(run_units(job, units[:1]))
+    t0 = time.perf_counter()
+    on_records(run_units(job, units[1:2]))
+    per_unit = time.perf_counter() - t0
+    left = len(units) - 2
+    est = budget.Estimate(f"{what}: {left:,} more at {per_unit:.2g} s each (measured on the second)",
+                          per_unit * left, budget.BASE_BYTES + BYTES_PER_RECORD * len(units))
+    budget.check(est, limits, log)
+    return units[2:]
+
+
 def run(job: dict, units: list, batch: int = 8, scheduler: str | None = None, workers: int | None = None,
-        serial: bool = False, on_records: Callable[[list[dict]], None] | None = None) -> dict:
+        serial: bool = False, on_records: Callable[[list[dict]], None] | None = None,
+        estimate: str | None = None, log=None) -> dict:
     """Evaluate every unit; records go to ``on_records`` as each batch finishes.
 
-    Returns a description of where it ran: ``{"mode", "scheduler", "workers"}``.
+    ``estimate``: what the units are (e.g. ``"tolerance trials"``): the run is
+    probed first (:func:`probe`) and refused beyond the command's limits
+    (:func:`lfsim.budget.current`). Returns a description of where it ran:
+    ``{"mode", "scheduler", "workers"}``.
     """
     on_records = on_records or (lambda recs: None)
+    if estimate:
+        units = probe(job, units, on_records, estimate, log=log)
     chunks = batches(units, batch)
     if serial:
         for chunk in chunks:

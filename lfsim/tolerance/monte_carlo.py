@@ -238,6 +238,11 @@ def run_tolerance(design: Design, out_dir, trials: int | None = None, seed: int 
     if trials < 1 or seed < 0 or batch < 1:
         raise ValueError(f"trials = {trials}, seed = {seed}, batch = {batch}: need trials >= 1, seed >= 0, batch >= 1")
     preflight(design, spec)
+    from .. import budget
+    from .execute import BYTES_PER_RECORD
+
+    budget.check(budget.Estimate(f"tolerance run of {trials:,} trials", 0.0,
+                                 budget.BASE_BYTES + BYTES_PER_RECORD * trials), hint="lower --trials")
     out = Path(out_dir)
     fp = fingerprint(design.raw, seed)
     run_file = out / "run.json"
@@ -281,7 +286,7 @@ def run_tolerance(design: Design, out_dir, trials: int | None = None, seed: int 
     try:
         if todo:
             where = execute.run(job, todo, batch=batch, scheduler=scheduler, workers=workers, serial=serial,
-                                on_records=on_records)
+                                on_records=on_records, estimate="tolerance trials", log=log)
     finally:
         if bar:
             bar.close()

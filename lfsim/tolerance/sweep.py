@@ -162,6 +162,20 @@ def run_sweep(design: Design, out_dir, axes: dict[str, np.ndarray], fixed: dict[
         raw["ini"] = dict(raw["ini"])
         raw["ini"]["analysis"] = {**raw["ini"].get("analysis", {}), "stride": list(stride), "symmetry": "none"}
     Design.from_dict(raw, path)
+    from .. import budget
+    from .execute import BYTES_PER_RECORD
+
+    n_pts = int(np.prod([len(v) for v in axes.values()]))
+    per_stack = None
+    if render and render_spec is not None and render_spec.resolution:
+        from ..render.focal_stack import estimate
+
+        per_stack = estimate(render_spec, render_spec.resolution, 0)
+    budget.check(budget.Estimate(
+        f"sweep of {n_pts:,} points" + (f", each a {per_stack.what}" if per_stack else ""),
+        n_pts * per_stack.seconds if per_stack else 0.0,
+        budget.BASE_BYTES + BYTES_PER_RECORD * n_pts + (per_stack.bytes if per_stack else 0.0)),
+        log=log, hint="fewer points")
     pts = grid(axes)
     Design.from_dict(apply_overrides(raw, pts[0], path), path)  # an unknown key is bad input, not a bad point
     units = [(f"pt:{i}", p) for i, p in enumerate(pts)]
@@ -186,7 +200,7 @@ def run_sweep(design: Design, out_dir, axes: dict[str, np.ndarray], fixed: dict[
     t0 = time.perf_counter()
     try:
         where = execute.run(job, units, batch=batch, scheduler=scheduler, workers=workers, serial=serial,
-                            on_records=on_records)
+                            on_records=on_records, estimate="sweep points", log=log)
     finally:
         if bar:
             bar.close()
