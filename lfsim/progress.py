@@ -6,17 +6,125 @@ one line, so the same calls print a plain line every ``interval`` seconds and
 a last one when work of 2 s or more ends::
 
     sub-systems: 120/459 sub (26%), 12 s elapsed, ETA 34 s
+
+Between bars, :func:`heartbeat` (around every ``lfsim`` command) speaks for
+work that shows no progress of its own for 2 s: Dr.Jit compiling the kernels
+of a design it has not met before (seen as new files in its kernel cache,
+``~/.drjit``), or any other long step::
+
+    compiling kernels for this design (14 so far; cached for later runs), 12 s elapsed
 """
 
 from __future__ import annotations
 
+import os
 import sys
+import threading
 import time
+from contextlib import contextmanager
+from pathlib import Path
 
 #: Seconds between two progress lines in a log.
 LOG_INTERVAL = 10.0
 #: Work that took at least this long (s) ends with a line in a log.
 LOG_CLOSE_AFTER = 2.0
+#: Seconds without progress output before the heartbeat speaks, then between its lines.
+HEARTBEAT_AFTER = 2.0
+_last = [time.monotonic()]  # the last time a bar moved or printed
+
+
+def touch() -> None:
+    """A bar moved or a line was printed: the heartbeat stays quiet for a while."""
+    _last[0] = time.monotonic()
+
+
+def kernel_cache() -> Path:
+    """Dr.Jit's on-disk kernel cache (``$HOME/.drjit``): one file per compiled kernel."""
+    return Path(os.path.expanduser("~")) / ".drjit"
+
+
+class _KernelCounter:
+    """Counts kernels written to Dr.Jit's cache since it was made (a directory stat per poll)."""
+
+    def __init__(self):
+        self.dir = kernel_cache()
+        self.t0 = time.time()
+        self.mtime = self._mtime()
+        self.new = 0
+
+    def _mtime(self) -> float:
+        try:
+            return self.dir.stat().st_mtime
+        except OSError:
+            return 0.0
+
+    def poll(self) -> bool:
+        """Whether kernels were written since the last poll (updates :attr:`new`)."""
+        m = self._mtime()
+        if m == self.mtime:
+            return False
+        self.mtime = m
+        try:
+            self.new = sum(1 for e in os.scandir(self.dir) if e.stat().st_mtime >= self.t0)
+        except OSError:
+            return False
+        return True
+
+
+def _emit(msg: str) -> None:
+    if sys.stderr.isatty():
+        from tqdm import tqdm
+
+        tqdm.write(msg, file=sys.stderr)
+    else:
+        print(msg, file=sys.stderr, flush=True)
+    touch()
+
+
+@contextmanager
+def heartbeat(what: str, after: float = HEARTBEAT_AFTER, interval: float | None = None, enabled: bool = True):
+    """Around a command: a line whenever ``after`` s (then ``interval`` s) pass with no progress output.
+
+    The line says "compiling kernels for this design" while Dr.Jit writes new
+    kernels to its cache, else that ``what`` is still working; at the end, a
+    run that compiled kernels for 2 s or more says how many it cached.
+    """
+    if not enabled:
+        yield
+        return
+    interval = LOG_INTERVAL if interval is None else float(interval)
+    counter = _KernelCounter()
+    stop = threading.Event()
+    t0 = time.monotonic()
+    touch()
+    spoke = [False]
+
+    def run():
+        wait = after
+        while not stop.wait(0.25):
+            now = time.monotonic()
+            compiling = counter.poll()
+            if now - _last[0] < wait:
+                continue
+            el = now - t0
+            if compiling or (counter.new and not spoke[0]):
+                _emit(f"compiling kernels for this design ({counter.new} so far; cached for later runs), "
+                      f"{el:.0f} s elapsed")
+            else:
+                _emit(f"{what}: working, {el:.0f} s elapsed")
+            spoke[0] = True
+            wait = interval
+
+    th = threading.Thread(target=run, name="lfsim-heartbeat", daemon=True)
+    th.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        th.join()
+        counter.poll()
+        if spoke[0] and counter.new:
+            _emit(f"{counter.new} kernels compiled and cached in {counter.dir} (later runs of this design load them)")
 
 
 class LogBar:
@@ -58,6 +166,7 @@ class LogBar:
 
     def update(self, n: int = 1) -> None:
         self.n += int(n)
+        touch()
         now = time.monotonic()
         if not self.closed and now - self.last >= self.interval:
             self.last = now
@@ -68,13 +177,25 @@ class LogBar:
             self.closed = True
             if time.monotonic() - self.t0 >= min(self.interval, LOG_CLOSE_AFTER):  # a short task needs none
                 print(self._line(), file=self.stream, flush=True)
+            touch()
 
 
 def bar(iterable=None, **kw):
     """A tqdm bar when standard error is a terminal, else a :class:`LogBar` (same calls)."""
+    touch()
     if sys.stderr.isatty():
         from tqdm import tqdm
 
-        return tqdm(iterable, **kw)
+        class _Bar(tqdm):
+            def update(self, n=1):
+                touch()
+                return super().update(n)
+
+            def __iter__(self):
+                for item in super().__iter__():
+                    touch()
+                    yield item
+
+        return _Bar(iterable, **kw)
     kw.pop("leave", None)
     return LogBar(iterable, **kw)

@@ -10,7 +10,7 @@ import argparse
 import math
 import sys
 
-from .. import __version__, budget
+from .. import __version__, budget, progress
 from ..backend import BackendError
 from ..design import DesignError
 from . import ini, optics, render, tolerance
@@ -46,7 +46,7 @@ def main(argv=None) -> int:
               file=sys.stderr)
         return 2
     try:
-        with budget.use(budget.Limits.from_args(args)):
+        with budget.use(budget.Limits.from_args(args)), progress.heartbeat(f"lfsim {args.verb}"):
             return args.func(args)
     except (DesignError, InputError, BackendError) as e:
         print(f"lfsim: error: {e}", file=sys.stderr)
