@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from lfsim.cli import main
+from lfsim.cli import main, read_rays_csv
 
 
 def test_trace_csv_and_json(scenes, tmp_path, capsys):
@@ -13,9 +13,13 @@ def test_trace_csv_and_json(scenes, tmp_path, capsys):
     rays.write_text("x,y,z,dx,dy,dz\n0,0,-5,0,0,1\n0,2,-5,0,0,1\n0,30,-5,0,0,1\n")
     out = tmp_path / "out.csv"
     assert main(["trace", str(scenes / "cooke_triplet.toml"), "--rays", str(rays), "--out", str(out)]) == 0
-    rows = [line.split(",") for line in out.read_text().strip().splitlines()]
-    assert rows[0] == ["x", "y", "z", "dx", "dy", "dz", "status", "opl"]
-    assert float(rows[1][2]) == 60.17675 and rows[1][6] == "0" and rows[3][6] == "1"
+    lines = out.read_text().strip().splitlines()
+    assert lines[0].startswith("# Cooke triplet") and "x,y,z in mm" in lines[0] and "7 behind" in lines[0]
+    rows = [line.split(",") for line in lines[1:]]
+    assert rows[0] == ["x", "y", "z", "dx", "dy", "dz", "status", "status_name", "opl"]
+    assert float(rows[1][2]) == 60.17675 and rows[1][6:8] == ["0", "ok"] and rows[3][6:8] == ["1", "missed"]
+    o, d = read_rays_csv(str(out))  # the output reads back as rays (the comment line is skipped)
+    assert o.shape == (3, 3) and float(o[0, 2]) == 60.17675
     assert main(["trace", str(scenes / "cooke_triplet.toml"), "--rays", str(rays), "--json",
                  "--precision", "float32", "--wavelength-nm", "486.1327"]) == 0
     data = json.loads(capsys.readouterr().out)

@@ -13,6 +13,7 @@
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -67,8 +68,9 @@ def contrast_map(res, path, k=None):
 
     worst = float(np.min(contrast_min(res)[sel]))
     found = f" (worst {worst:.3f}, searched between fields)" if res.get("refined") else ""
-    ax.set_title(f"{model.design.name}\ncontrast at Nyquist, CDP {model.depths[k]:g} D: "
-                 f"min {np.min(c):.3f}, mean {np.mean(c):.3f} over {c.size} fields{found}", fontsize=9)
+    # over the whole figure (axes and colour bar), wrapped: a long design name never runs under the bar
+    fig.suptitle(textwrap.fill(f"{model.design.name}: contrast at Nyquist, CDP {model.depths[k]:g} D", 95) + "\n"
+                 + f"min {np.min(c):.3f}, mean {np.mean(c):.3f} over {c.size} fields{found}", fontsize=9)
     save_figure(fig, path, bbox_inches="tight")
     plt.close(fig)
 
@@ -166,7 +168,8 @@ def footprints(res, path, k=None):
             ok = res["bundle"].ok[i, f, per]
             real = res["bundle"].pos[i, f, per][ok]
             par = res["par"][i, f, per, :2]
-            ax.fill(par[:, 0], par[:, 1], fill=False, ec="k", lw=0.5)
+            ax.fill(par[:, 0], par[:, 1], fill=False, ec="k", lw=0.5,
+                    label="paraxial" if not done[1:] and f == 0 else None)
             if len(real):
                 ax.fill(real[:, 0], real[:, 1], fill=False, ec=col, lw=0.9,
                         label=f"({subs.m[i] + 1},{subs.n[i] + 1})" if f == 0 else None)
@@ -180,7 +183,9 @@ def footprints(res, path, k=None):
     ax.set_title(f"Footprints on the viewing window, CDP {model.depths[k]:g} D\n"
                  f"paraxial (black) vs real; PA max {np.max(pa):.3f}, mean {np.mean(pa):.3f}; "
                  f"eye pupil {2 * r:g} mm (dotted)", fontsize=9)
-    ax.legend(fontsize=7, title="lenslet", loc="upper right")
+    # beside the axes, so it never covers a footprint
+    ax.legend(fontsize=7, title="real, lenslet (m,n)", title_fontsize=7, loc="upper left",
+              bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0)
     save_figure(fig, path, bbox_inches="tight")
     plt.close(fig)
 

@@ -54,6 +54,11 @@ def main(argv=None) -> int:
     except ValueError as e:
         print(f"lfsim: error: {' '.join(str(e).split())}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # the reader of our output went away (`lfsim params D | head`): not an error
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit's flush
+        return 0
     except OSError as e:  # an output path that cannot be written, a directory given for a file, ...
         where = f"{e.filename}: " if e.filename else ""
         print(f"lfsim: error: {where}{' '.join(str(e.strerror or e).split())}", file=sys.stderr)

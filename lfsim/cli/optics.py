@@ -71,11 +71,16 @@ def cmd_trace(args) -> int:
         }))
     else:
         buf = io.StringIO()
+        lam = args.wavelength_nm or design.system.primary_wavelength_nm
+        buf.write(f"# {design.name} at {lam:g} nm, {args.precision}; x,y,z in mm (global frame, at the last "
+                  "surface); dx,dy,dz direction cosines; opl optical path length in mm; status: "
+                  + ", ".join(f"{int(st)} {st.name.lower()}" for st in Status) + "\n")
         w = csv.writer(buf)
-        w.writerow(["x", "y", "z", "dx", "dy", "dz", "status", "opl"] + (["m", "n"] if arrays else []))
+        w.writerow(["x", "y", "z", "dx", "dy", "dz", "status", "status_name", "opl"] + (["m", "n"] if arrays else []))
         for i in range(len(o)):
+            st = int(r.status[i])
             w.writerow([f"{v:.15g}" for v in (*r.positions[i], *r.directions[i])]
-                       + [int(r.status[i]), f"{r.opl[i]:.15g}"]
+                       + [st, Status(st).name.lower(), f"{r.opl[i]:.15g}"]
                        + (r.lenslet[i].tolist() if arrays else []))
         if args.out:
             write_text(args.out, buf.getvalue())

@@ -87,7 +87,7 @@ def cmd_sweep(args) -> int:
     keys = list(doc["axes"])
     print(f"{doc['design']}: {len(doc['points'])} points in {doc['seconds']:.1f} s ({doc['execution']['mode']})")
     for p in doc["points"]:
-        vals = " ".join(f"{k}={p['values'][k]:.6g}" for k in keys)
+        vals = " ".join(f"{k}={p['values'][k]:.6g}{' ' + doc['units'][k] if doc['units'][k] else ''}" for k in keys)
         if p["error"]:
             print(f"  {vals}: {p['error']}")
             continue

@@ -234,25 +234,36 @@ def compare_spots(before: dict, after: dict, path, field_unit: str = "°") -> di
 
 
 def compare(before: dict, after: dict, path) -> dict:
-    """Before/after table and bar plot of two ``lfsim analyze`` documents."""
+    """Before/after table and bar plots of two ``lfsim analyze`` documents: one panel per
+    quantity and unit (GD in degrees, PA, contrast at Nyquist, RMS spot in arcmin),
+    with the design's targets where it has them."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    keys = [("gd_max_deg", "GD max (°)"), ("gd_mean_deg", "GD mean (°)"), ("pa_max", "PA max"),
-            ("pa_mean", "PA mean"), ("contrast_nyquist_min", "contrast min"),
-            ("contrast_nyquist_mean", "contrast mean"), ("rms_spot_mean_arcmin", "RMS spot (′)")]
-    rows = {k: (before["summary"].get(k), after["summary"].get(k)) for k, _ in keys}
-    fig, ax = plt.subplots(figsize=(8, 3.6))
-    xs = np.arange(len(keys))
-    b = [rows[k][0] or 0.0 for k, _ in keys]
-    a = [rows[k][1] or 0.0 for k, _ in keys]
-    ax.bar(xs - 0.2, b, 0.4, label="before")
-    ax.bar(xs + 0.2, a, 0.4, label="after")
-    ax.set_xticks(xs, [lbl for _, lbl in keys], rotation=20, fontsize=8)
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3, axis="y")
+    panels = [("GD (Eq. 11), deg", [("gd_max_deg", "max"), ("gd_mean_deg", "mean")], "gd_target_deg"),
+              ("PA (Eq. 12)", [("pa_max", "max"), ("pa_mean", "mean")], "pa_target"),
+              ("contrast at Nyquist", [("contrast_nyquist_min", "min"), ("contrast_nyquist_mean", "mean")], None),
+              ("RMS spot, arcmin", [("rms_spot_mean_arcmin", "mean")], None)]
+    keys = [k for _, ks, _ in panels for k, _ in ks]
+    rows = {k: (before["summary"].get(k), after["summary"].get(k)) for k in keys}
+    fig, axes = plt.subplots(1, len(panels), figsize=(11, 3.4))
+    for ax, (title, ks, target) in zip(axes, panels):
+        xs = np.arange(len(ks))
+        for dx, j, lbl in ((-0.2, 0, "before"), (0.2, 1, "after")):
+            vals = [rows[k][j] for k, _ in ks]
+            bars = ax.bar(xs + dx, [np.nan if v is None else v for v in vals], 0.4, label=lbl)
+            ax.bar_label(bars, labels=["-" if v is None else f"{v:.3g}" for v in vals], fontsize=7)
+        t = before["summary"].get(target) if target else None
+        if t is not None:
+            ax.axhline(t, color="k", ls="--", lw=0.8, label=f"target {t:g}")
+        ax.set_xticks(xs, [lbl for _, lbl in ks], fontsize=8)
+        ax.set_xlim(-0.6, len(ks) - 0.4)
+        ax.set_ylabel(title, fontsize=9)
+        ax.margins(y=0.15)
+        ax.grid(alpha=0.3, axis="y")
+    axes[0].legend(fontsize=7)
     fig.tight_layout()
     save_figure(fig, path, dpi=110)
     plt.close(fig)

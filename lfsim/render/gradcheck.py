@@ -564,14 +564,18 @@ def run(design, content, names: list[str], view, rel_step: float | None = None,
 
 
 def table(doc: dict) -> str:
-    """The gradcheck table as text (one row per parameter)."""
-    head = (f"{'parameter':18s} {'value':>12s} {'AD':>12s} {'FD':>12s} {'rel err':>9s} {'AD kept':>12s} "
+    """The gradcheck table as text (one row per parameter, with its unit; a note on the derivatives' units)."""
+    head = (f"{'parameter':18s} {'value':>12s} {'unit':5s} {'AD':>12s} {'FD':>12s} {'rel err':>9s} {'AD kept':>12s} "
             f"{'FD interior':>12s} {'int err':>9s} {'FD step':>9s} {'edge term':>11s} {'bias':>8s} {'edges':>6s}  type")
     lines = [head, "-" * len(head)]
     for p in doc["params"]:
         kind = "boundary" if p["boundary"] else "interior"
-        lines.append(f"{p['name']:18s} {p['value']:12.6g} {p['ad']:12.5g} {p['fd']:12.5g} {p['rel_err']:9.2e} "
+        lines.append(f"{p['name']:18s} {p['value']:12.6g} {p.get('unit') or '-':5s} {p['ad']:12.5g} {p['fd']:12.5g} "
+                     f"{p['rel_err']:9.2e} "
                      f"{p['ad_kept']:12.5g} {p['fd_interior']:12.5g} {p['interior_rel_err']:9.2e} "
                      f"{p['fd_step']:9.2e} {p['boundary_term']:11.4g} {100 * p['bias']:7.1f}% "
                      f"{p['edge_samples']:6d}  {kind}")
+    lines.append("AD, FD, AD kept, FD interior, edge term: d(loss)/d(parameter) per unit of the parameter "
+                 "(the loss, a sum over focus distances of mean squared image differences, has no unit); "
+                 "FD step in the parameter's unit")
     return "\n".join(lines)

@@ -111,7 +111,44 @@ def _table_csv(keys, points) -> str:
     return buf.getvalue()
 
 
-def _plot(keys, points, path: Path) -> None:
+#: Axis labels of the plotted metrics, with their units.
+LABELS = {"gd_max_deg": "GD max (Eq. 11), deg", "pa_max": "PA max (Eq. 12)",
+          "contrast_nyquist_min": "contrast at Nyquist, min", "rms_spot_mean_arcmin": "RMS spot mean, arcmin"}
+#: Units of sweepable keys by their last name (dotted paths); parameter names take the design's own.
+_KEY_UNITS = (("power_diopters", "D"), ("curvature", "1/mm"), ("tilt", "deg"), ("pitch", "mm"), ("thickness", "mm"),
+              ("distance", "mm"), ("gap", "mm"), ("semi_diameter", "mm"), ("radius", "mm"), ("decenter", "mm"),
+              ("position", "mm"), ("diameter", "mm"), ("wavelength", "nm"))
+#: Spread below which a curve is drawn as constant (float rounding, not a trend): relative to its
+#: value, or absolute (the plotted metrics are of order 0.01 to 10 in their units).
+FLAT_REL, FLAT_ABS = 1e-9, 1e-9
+
+
+def unit_of(design: Design, key: str) -> str:
+    """The unit of a sweep key: the design vector's for a parameter name, else by the key's last name."""
+    for name, _, unit in design.parameters(design.wavelength(None)):
+        if name == key:
+            return unit
+    last = key.rsplit(".", 1)[-1].split("[", 1)[0]
+    return next((u for k, u in _KEY_UNITS if k in last), "")
+
+
+def _flatten(ax, ys) -> bool:
+    """Draw a curve that is constant to float rounding as constant: y limits ±1 % (or ±1e-3) about it."""
+    ys = np.asarray([y for y in ys if np.isfinite(y)], float)
+    if ys.size < 2:
+        return False
+    mid, spread = float(np.mean(ys)), float(np.ptp(ys))
+    if spread > max(FLAT_REL * abs(mid), FLAT_ABS):
+        return False
+    half = max(0.01 * abs(mid), 1e-3)
+    ax.set_ylim(mid - half, mid + half)
+    ax.ticklabel_format(axis="y", useOffset=False, style="plain")
+    ax.text(0.5, 0.92, f"constant ({mid:.3g}; spread {spread:.1e})", transform=ax.transAxes, ha="center",
+            fontsize=7, color="0.3")
+    return True
+
+
+def _plot(keys, points, path: Path, x_label: str | None = None) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -126,14 +163,17 @@ def _plot(keys, points, path: Path) -> None:
     for p in points:
         groups.setdefault(tuple(p["values"][k] for k in rest), []).append(p)
     for ax, metric in zip(axes, shown):
+        every = []
         for g, pts in groups.items():
             xs = [p["values"][x_key] for p in pts]
             ys = [np.nan if not p["metrics"] or p["metrics"].get(metric) is None else p["metrics"][metric]
                   for p in pts]
+            every += ys
             label = ", ".join(f"{k}={v:g}" for k, v in zip(rest, g)) or None
             ax.plot(xs, ys, "o-", ms=3, label=label)
-        ax.set_xlabel(x_key)
-        ax.set_ylabel(metric)
+        _flatten(ax, every)
+        ax.set_xlabel(x_label or x_key)
+        ax.set_ylabel(LABELS.get(metric, metric))
         ax.grid(alpha=0.3)
         if rest and len(groups) <= 8:
             ax.legend(fontsize=6)
@@ -230,11 +270,13 @@ def _write(design, out, raw, path, axes, keys, fixed, reference, points, seconds
             p["focal_stack"] = {"dir": str(sub.relative_to(out)), "images": [
                 {k: im.get(k) for k in ("kind", "focus_mm", "png", "ssim_vs_natural", "psnr_vs_natural")}
                 for im in index["images"]]}
+    units = {k: unit_of(design, k) for k in keys}
     doc = {"design": design.name, "file": design.path, "axes": {k: [float(v) for v in axes[k]] for k in keys},
+           "units": units,
            "fixed": dict(fixed or {}), "reference": reference or "self", "points": points,
            "seconds": round(seconds, 2), "execution": where}
     write_text(out / "sweep.csv", _table_csv(keys, points))
-    _plot(keys, points, out / "sweep.png")
+    _plot(keys, points, out / "sweep.png", x_label=f"{keys[0]}, {units[keys[0]]}".rstrip(", "))
     doc["plots"] = ["sweep.png"]
     write_json(out / "sweep.json", doc)
     return doc
