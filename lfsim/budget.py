@@ -33,7 +33,7 @@ MEMORY_SHARE = 0.8
 ANNOUNCE_AFTER_S = 10.0
 
 #: Measured throughput, samples per second per Dr.Jit thread (2-core AMD EPYC, AVX-512,
-#: ``lfsim focal-stack`` at 256x144 to 1024x576 px, 16 to 256 spp; see benchmarks/cold_start.py):
+#: ``lfsim focal-stack`` at 256x144 to 1024x576 px, 16 to 256 spp; benchmarks/work_estimates.py compares):
 #: retinal images through the analytic display path, through the path-traced optics meshes,
 #: of the content seen directly; display pixels of the elemental images (real chief rays).
 RATES = {"display_analytic": 4.5e6, "display_mesh": 1.2e6, "natural": 5.5e6, "elemental_px": 0.8e6}
