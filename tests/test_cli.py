@@ -250,3 +250,28 @@ def test_folder_output_is_replaced_whole_on_a_rerun(scenes, tmp_path, capsys):
     empty = tmp_path / "empty"
     empty.mkdir()
     assert main(["layout", str(scenes / "cooke_triplet.toml"), "--out", str(empty)]) == 0
+
+
+def test_human_output_has_units_and_no_python_reprs(scenes, tmp_path, capsys):
+    """Printed numbers carry units; no None, tuple reprs or float rounding noise about zero."""
+    import re
+
+    from lfsim.ini.first_order import IniFirstOrder
+
+    runs = [["first-order", str(scenes / "cooke_triplet.toml")],
+            ["ini", "--p-mla", "1", "--g", "4.5", "--f-mla", "3.5", "--cdp-diopters", "1", "--z-xp", "31",
+             "--f-ep", "31", "--m", "17", "--n", "9"],
+            ["ini", str(scenes / "ini_ideal.toml")],
+            ["layout", str(scenes / "cooke_triplet.toml"), "--out", str(tmp_path / "lay")]]
+    for argv in runs:
+        assert main(argv) == 0
+        out = capsys.readouterr().out
+        body = "\n".join(out.splitlines()[1:])  # below the title line
+        assert "None" not in body and not re.search(r"\(\d|\d\)|e-1[0-9]", body), (argv, out)
+        for line in out.splitlines()[1:]:
+            m = re.match(r"\s+(\w+)\s+(-?[\d.]+(?:e[+-]?\d+)?)(.*)$", line)
+            if m and m.group(1) not in ("m", "n", "n_object", "n_image", "fno", "working_fno", "magnification"):
+                assert m.group(3).strip(), f"{' '.join(argv)}: no unit on {line!r}"
+    assert set(IniFirstOrder.UNITS) == {f for f in IniFirstOrder.__dataclass_fields__}
+    assert main(["layout", str(scenes / "cooke_triplet.toml"), "--out", str(tmp_path / "lay")]) == 0
+    assert "field 14°: RMS spot" in capsys.readouterr().out

@@ -21,6 +21,10 @@ def cmd_ini_design(args) -> int:
     print(f"{model.design.name}: InI first-order model (Eqs. 1-10 from the design's own maps)")
     print(f"  {model.arr.m} x {model.arr.n} lenslets, pitch {model.arr.pitch[0]:g} mm, display gap {model.g:g} mm")
     units = type(model.state(0)).UNITS
+
+    def num(v: float) -> str:  # 6 significant digits; float rounding about zero (|v| < 1e-9) is 0
+        return f"{0.0 if abs(v) < 1e-9 else v:.6g}"
+
     for st in states:
         print(f"  CDP {st['diopters']:g} D:")
         for k, v in st.items():
@@ -29,9 +33,9 @@ def cmd_ini_design(args) -> int:
             if v is None:
                 text = "none (no tunable lens)" if k == "tunable_power_diopters" else "undefined"
             elif isinstance(v, (tuple, list)):  # x, y
-                text = " x ".join(f"{c:.6g}" for c in v) + f" {units.get(k, '')}"
+                text = " x ".join(num(c) for c in v) + f" {units.get(k, '')}"
             else:
-                text = f"{v:.6g} {units.get(k, '')}"
+                text = f"{num(v)} {units.get(k, '')}"
             print(f"    {k:22s} {text.rstrip()}")
     return 0
 
@@ -67,9 +71,10 @@ def cmd_ini(args) -> int:
     if args.json:
         print(_dump(d))
     else:
-        print("InI-HMD first-order model (Eqs. 1-10; mm, deg, diopters)")
+        print("InI-HMD first-order model (Eqs. 1-10)")
         for k, v in d.items():
-            print(f"  {k:22s} {'inf' if v is None else (f'{v:.10g}' if isinstance(v, float) else v)}")
+            unit = fo.UNITS.get(k, "")
+            print(f"  {k:22s} {'inf' if v is None else (f'{v:.10g}' if isinstance(v, float) else v)} {unit}".rstrip())
     return 0
 
 

@@ -131,9 +131,10 @@ def cmd_layout(args) -> int:
         fo = summary["first_order"]
         print(f"{design.name}: EFL {_fmt(fo['efl'], '.6f', 'mm')}, BFL {_fmt(fo['bfl'], '.6f', 'mm')}, "
               f"F/# {_fmt(fo['fno'], '.4f')}")
+        unit = "°" if design.system.field_type == "angle" else " mm"
         for row in summary["spots"]:
             rms = "vignetted" if row["rms_um"] is None else f"RMS spot {row['rms_um']:.3f} µm"
-            print(f"  field {row['field']:g}: {rms}")
+            print(f"  field {row['field']:g}{unit}: {rms}")
         print(f"wrote {args.out}/layout.png, spots.png, summary.json")
     return 0
 

@@ -73,6 +73,12 @@ class IniFirstOrder:
     cdp_diopters: float
     f_mla: float
 
+    #: Unit of each field of :meth:`as_dict` (lengths mm, angles deg; m and n are counts).
+    UNITS = {"p_mla": "mm", "g": "mm", "l": "mm", "z_ic": "mm", "z_xp": "mm", "f_ep": "mm", "z_cdp": "mm",
+             "m": "", "n": "", "p_ei": "mm", "z_xp_image": "mm", "d_v": "mm", "D_v": "mm", "delta_p_eic": "mm",
+             "p_eic": "mm", "delta_theta_eic_deg": "deg", "theta_eic_deg": "deg", "fov_diag_deg": "deg",
+             "cdp_diopters": "D", "f_mla": "mm"}
+
     def as_dict(self) -> dict:
         return {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
                 for k, v in asdict(self).items()}
