@@ -141,6 +141,7 @@ class LogBar:
         self.t0 = self.last = time.monotonic()
         self.closed = bool(disable)
         self.postfix = ""
+        self._shown = None  # the count of the last line printed
 
     def __iter__(self):
         for item in self.iterable:
@@ -169,13 +170,14 @@ class LogBar:
         touch()
         now = time.monotonic()
         if not self.closed and now - self.last >= self.interval:
-            self.last = now
+            self.last, self._shown = now, self.n
             print(self._line(), file=self.stream, flush=True)
 
     def close(self) -> None:
         if not self.closed:
             self.closed = True
-            if time.monotonic() - self.t0 >= min(self.interval, LOG_CLOSE_AFTER):  # a short task needs none
+            # a short task needs no closing line, nor one that repeats the last
+            if time.monotonic() - self.t0 >= min(self.interval, LOG_CLOSE_AFTER) and self._shown != self.n:
                 print(self._line(), file=self.stream, flush=True)
             touch()
 

@@ -94,7 +94,8 @@ dummy = true
     assert out[1]["status_name"] == "wrong_lenslet"
     assert main(["trace", str(d), "--rays", str(rays)]) == 0
     lines = capsys.readouterr().out.strip().splitlines()
-    assert lines[0].endswith("status,opl,m,n") and lines[1].endswith(",2,0")
+    assert lines[0].startswith("# ") and lines[1].endswith("status,status_name,opl,m,n")
+    assert lines[2].endswith(",2,0") and ",ok," in lines[2]
 
 
 def test_ini_first_order_verb(capsys):
@@ -205,6 +206,7 @@ def test_progress_prints_lines_in_a_log():
     lines = out.getvalue().splitlines()
     assert lines[0].startswith("sub-systems: 1/4 sub (25%), ") and "ETA" in lines[0]
     assert lines[2].startswith("sub-systems: 4/4 sub (100%)") and lines[2].endswith("cost=1.5")
+    assert len(lines) == 3  # the closing line does not repeat the last update's
     assert "\r" not in out.getvalue()
     quiet = io.StringIO()
     LogBar(total=3, stream=quiet, interval=0.0, disable=True).update(3)

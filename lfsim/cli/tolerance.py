@@ -40,10 +40,15 @@ def cmd_tolerance(args) -> int:
           f"(95 % CI {100 * ci[0]:.1f}-{100 * ci[1]:.1f} %)")
     for t, y in doc["yield_by_target"].items():
         print(f"  {t} {doc['targets'][t]:g}: {100 * y:.1f} % of trials")
-    print("  sensitivity (margin used at ± limit):")
-    for r in doc["sensitivity"]:
-        used = "inf" if r["margin_used_inf"] else ("-" if r["margin_used"] is None else f"{r['margin_used']:.3f}")
-        print(f"    {r['rank']:2d}. {r['name']:28s} ±{r['limit']:g}  {used:>7s}  ({r['worst_target']})")
+    measured = [r for r in doc["sensitivity"] if r["margin_used"] is not None or r["margin_used_inf"]]
+    if measured:
+        print("  sensitivity (margin used at ± limit):")
+    for r in measured:
+        used = "inf" if r["margin_used_inf"] else f"{r['margin_used']:.3f}"
+        print(f"    {r['rank']:2d}. {r['name']:28s} ±{r['limit']:g}  {used:>7s}  ({r['worst_target'] or '-'})")
+    if len(measured) < len(doc["sensitivity"]):
+        print(f"  sensitivity: {len(doc['sensitivity']) - len(measured)} tolerance(s) without ± limit runs "
+              "(--no-sensitivity, or the run failed)")
     print(f"wrote {args.out}/summary.json, trials.jsonl, sensitivity.jsonl, sensitivity.csv"
           + (", " + ", ".join(doc.get("plots", [])) if doc.get("plots") else ""))
     return 0
