@@ -107,10 +107,12 @@ class Estimate:
     what: str
     seconds: float
     bytes: float = 0.0
+    note: str = ""  # e.g. what the time leaves out
 
     def text(self) -> str:
         mem = f", peak memory about {gigabytes(self.bytes)}" if self.bytes else ""
-        return f"{self.what}: about {duration(self.seconds)}{mem}"
+        note = f" ({self.note})" if self.note else ""
+        return f"{self.what}: about {duration(self.seconds)}{note}{mem}"
 
 
 @dataclass(frozen=True)

@@ -82,7 +82,7 @@ def _emit(msg: str) -> None:
 
 
 @contextmanager
-def heartbeat(what: str, after: float = HEARTBEAT_AFTER, interval: float | None = None, enabled: bool = True):
+def heartbeat(what: str, after: float | None = None, interval: float | None = None, enabled: bool = True):
     """Around a command: a line whenever ``after`` s (then ``interval`` s) pass with no progress output.
 
     The line says "compiling kernels for this design" while Dr.Jit writes new
@@ -93,6 +93,11 @@ def heartbeat(what: str, after: float = HEARTBEAT_AFTER, interval: float | None 
         yield
         return
     interval = LOG_INTERVAL if interval is None else float(interval)
+    if after is None:  # LFSIM_HEARTBEAT_AFTER: seconds before the first line (default HEARTBEAT_AFTER)
+        try:
+            after = float(os.environ.get("LFSIM_HEARTBEAT_AFTER", HEARTBEAT_AFTER))
+        except ValueError:
+            after = HEARTBEAT_AFTER
     counter = _KernelCounter()
     stop = threading.Event()
     t0 = time.monotonic()

@@ -13,6 +13,9 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 # CPU's default 8, with the same per-lane arithmetic. test_kernel_reuse.py checks
 # that traces, first-order data and aimed bundles are bit for bit the same at 8 and 4.
 os.environ.setdefault("LFSIM_VECTOR_WIDTH", "4")
+# Tests that check a one-line error must not see a heartbeat line when a loaded machine makes
+# the work before the error take over 2 s (tests/test_progress.py checks the heartbeat itself).
+os.environ.setdefault("LFSIM_HEARTBEAT_AFTER", "60")
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "scenes"

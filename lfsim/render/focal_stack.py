@@ -143,7 +143,7 @@ def estimate(spec: FocalStackSpec, resolution: tuple[int, int], display_px: int)
         + display_px * budget.BYTES_PER_DISPLAY_PX
     what = (f"focal stack of {images} images at {W}x{H} px x {spec.spp} spp ({budget.count(images * samples)} samples, "
             f"{spec.optics} optics) from {budget.count(display_px)} display px")
-    return budget.Estimate(what, seconds, nbytes)
+    return budget.Estimate(what, seconds, nbytes, note="plus kernel compiles on a design's first run")
 
 
 def focal_stack(design, content, out_dir, spec: FocalStackSpec | None = None, progress: bool = False,

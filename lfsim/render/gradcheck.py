@@ -485,7 +485,8 @@ def estimate(view, n_params: int, fd_points: int, n_sweep: int, mesh: bool, targ
     # AD keeps each lane's path state for the reverse pass: about 1 kB per sample (float64 analytic path)
     nbytes = budget.BASE_BYTES + 1024.0 * samples
     return budget.Estimate(f"gradient check of {n_params} parameter(s), {renders:.0f} renders of {W}x{H} px x "
-                           f"{view.spp} spp x {len(view.focus_mm)} focus distance(s)", seconds, nbytes)
+                           f"{view.spp} spp x {len(view.focus_mm)} focus distance(s)", seconds, nbytes,
+                           note="plus kernel compiles on a design's first run")
 
 
 def run(design, content, names: list[str], view, rel_step: float | None = None,
