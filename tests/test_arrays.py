@@ -118,7 +118,11 @@ def test_float32_agrees_with_float64_on_the_array(mla):
     b = mla.trace(o, d, precision="float32")
     ok = (a.status == 0) & (b.status == 0)
     assert ok.mean() > 0.9
-    assert np.max(np.abs(a.positions[ok] - b.positions[ok])) < 2e-6
+    # Float32 rounding noise: EPS32 (2^-24) of the largest coordinate (3.3 mm); measured 1.3 of it.
+    # Bound 8x that (2.6e-6 mm), at most 1e-5 mm.
+    tol = 8 * 2.0**-24 * np.abs(a.positions[ok]).max()
+    assert tol < 1e-5, tol
+    assert np.max(np.abs(a.positions[ok] - b.positions[ok])) < tol
 
 
 def test_monolithic_array_cell_is_picked_by_the_hit(mla):

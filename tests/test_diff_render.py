@@ -60,8 +60,12 @@ def test_primal_matches_the_mitsuba_analytic_path(small):
     finally:
         release(key)
     rmse = np.sqrt(np.mean((mine - refs[0]) ** 2))
-    noise = np.sqrt(np.mean((refs[1] - refs[0]) ** 2))
-    assert abs(mine.mean() - refs[0].mean()) < 0.05 * refs[0].mean()
+    noise = np.sqrt(np.mean((refs[1] - refs[0]) ** 2))  # per pixel, of a difference of two renders
+    # Means: 5 % (a brightness error) or 4 standard errors of the difference of two means
+    # (noise / sqrt(pixels): 1.65 % of the mean here, so 6.6 %), whichever is larger; ceiling 10 %.
+    tol = max(0.05 * refs[0].mean(), 4.0 * noise / np.sqrt(mine.size))
+    assert tol <= 0.1 * refs[0].mean(), (tol, noise)
+    assert abs(mine.mean() - refs[0].mean()) < tol
     assert rmse < 1.3 * noise, (rmse, noise)
 
 
@@ -84,20 +88,31 @@ def test_forward_and_reverse_mode_give_the_same_directional_derivative(small):
     assert abs(rev - fwd) <= 1e-9 * abs(fwd), (rev, fwd)
 
 
+def _fd_tol(p):
+    """Float64 AD against a central difference: 1e-5 (over 10x the largest interior error measured
+    at one step) or 4 x the difference's own noise (the spread of its two steps), whichever is larger;
+    at most 2 %, gradcheck's pass mark (the ceiling: noise cannot excuse a wrong derivative)."""
+    tol = max(1e-5, 4.0 * p["interior_noise_rel"])
+    assert tol <= 0.02, p
+    return tol
+
+
 def test_ad_matches_central_differences_and_flags_boundary_parameters(small):
     from lfsim.render import gradcheck as gc
 
     r, content = small
     targets = gc.natural_targets(r, content, spp=16)
-    doc = gc.gradcheck(r, targets, ["MLA.power", "object.distance", "EP.thickness", "TL.power"])
+    # Two steps (h, 2h) per side: their spread is the noise of the difference (truncation and
+    # rounding), ``interior_noise_rel`` (~1e-8 of the derivative here).
+    doc = gc.gradcheck(r, targets, ["MLA.power", "object.distance", "EP.thickness", "TL.power"], fd_points=2)
     rows = {p["name"]: p for p in doc["params"]}
     for p in rows.values():
-        assert p["interior_rel_err"] <= 0.02, p
+        assert p["interior_rel_err"] <= _fd_tol(p), p
         assert p["forward_reverse_rel"] <= 1e-9, p
     # Neither the lenslet power nor the display gap moves a cell seam or an aperture edge.
     for name in ("MLA.power", "object.distance"):
         assert not rows[name]["boundary"] and rows[name]["edge_samples"] == 0
-        assert rows[name]["rel_err"] <= 0.02, rows[name]
+        assert rows[name]["rel_err"] <= _fd_tol(rows[name]), rows[name]
     # The tunable lens moves where eye rays cross the lenslet array: samples change cells.
     tl = rows["TL.power"]
     assert tl["boundary"] and tl["edge_samples"] > 10 and abs(tl["bias"]) > 0.1
@@ -105,14 +120,14 @@ def test_ad_matches_central_differences_and_flags_boundary_parameters(small):
 
 def test_gradcheck_cli_json_contract(tmp_path):
     cmd = [sys.executable, "-m", "lfsim.cli", "gradcheck", "--param", "MLA.power,object.distance",
-           "--resolution", "16,9", "--spp", "4", "--focus-mm", "1000", *SETS, "--json"]
+           "--resolution", "16,9", "--spp", "4", "--focus-mm", "1000", "--fd-points", "2", *SETS, "--json"]
     out = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     doc = json.loads(out.stdout)
     assert [p["name"] for p in doc["params"]] == ["MLA.power", "object.distance"]
     for p in doc["params"]:
         assert {"name", "value", "ad", "fd", "rel_err", "boundary"} <= set(p)
-        assert isinstance(p["boundary"], bool) and p["rel_err"] <= 0.02
+        assert isinstance(p["boundary"], bool) and p["rel_err"] <= _fd_tol(p), p
     bad = subprocess.run(cmd[:5] + ["MLA.nope"] + cmd[6:], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert bad.returncode == 2 and "MLA.nope" in bad.stderr and "Traceback" not in bad.stderr
 

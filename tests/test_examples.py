@@ -111,4 +111,10 @@ def test_float32_agrees_with_float64(scenes, scene):
     a, b = d.trace(o, dirs), d.trace(o, dirs, precision="float32")
     assert np.array_equal(a.status, b.status)
     ok = a.status == 0
-    assert np.max(np.abs(a.positions[ok] - b.positions[ok])) < 1e-4  # 0.1 µm (pixels are µm-sized)
+    # Float32 rounding noise: EPS32 (2^-24) of the longest distance from the origin, launch point or
+    # surface vertex (27-60 mm); measured 0.9-4.9 of it (most behind the prism's TIR and mirror).
+    # Bound 16x that, at most 0.1 µm (pixels are µm-sized).
+    scale = max(np.abs(o).max(), max(abs(v[2]) for _, v in d.tracer().frames_numpy()))
+    tol = 16 * 2.0**-24 * scale
+    assert tol <= 1e-4, tol
+    assert np.max(np.abs(a.positions[ok] - b.positions[ok])) < tol

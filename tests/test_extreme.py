@@ -32,6 +32,21 @@ from lfsim.ini.subsystems import sample
 F_EP, F_MLA, G, D_MLA_EP, Z_XP = 31.0, 3.5, 4.5, 46.75, 31.0
 LENSLETS = [(8, 4), (0, 0), (16, 8)]  # centre, a corner, the opposite corner (0-based)
 ARCMIN = 60.0 * 180.0 / math.pi
+#: float32 unit roundoff. Each float32 bound below is a stated multiple of the case's rounding
+#: noise: EPS32 times the magnitude rounded. Positions: EPS32 · L, L the display-to-viewing-window
+#: path (82 mm ideal, 381 mm ini_coaxial); PA (and a real design's contrast): that over the
+#: smallest footprint d_v; angles: EPS32 rad; diopters: EPS32 of the eyepiece's 32 D; relative
+#: figures and the diffraction-limited contrast: EPS32. Margins over what is measured (the
+#: table at the end of the run) are 5x or more.
+EPS32 = 2.0**-24
+P_EP = 1000.0 / F_EP  # the eyepiece's power (D): the scale of the tunable-lens solve
+F32_D = 64 * EPS32 * P_EP  # float32 bound on powers and depths (D); measured <= 1.3e-5 D
+
+
+def f32_scales(model):
+    """(L, L / d_v): the display-to-viewing-window path (mm) and that over the smallest footprint."""
+    L = abs(float(model.o_vw[2])) + model.g
+    return L, L / min(min(model.state(k).d_v) for k in range(len(model.depths)))
 
 
 def ideal(scenes, **changes):
@@ -75,11 +90,14 @@ def check_ideal_metrics(accuracy, model, res, m32, r32, what):
     accuracy(f"{what}: PA max", np.max(res["pa"]), 1e-9)
     accuracy(f"{what}: RMS spot max (arcmin)", np.max(res["rms"]) * ARCMIN, 1e-9)
     accuracy(f"{what}: centre contrast vs 1 - nu lambda/d_v", centre_contrast_error(model, res), 1e-9)
-    accuracy(f"{what}: GD max (deg)", np.max(r32["gd"]), 1e-4, "float32")
-    accuracy(f"{what}: PA max", np.max(r32["pa"]), 1e-4, "float32")
-    accuracy(f"{what}: VW positions (mm)", np.max(np.abs(r32["bundle"].pos - res["bundle"].pos)), 1e-4, "f32 vs f64")
-    accuracy(f"{what}: contrast", np.max(np.abs(r32["contrast"] - res["contrast"])), 1e-5, "f32 vs f64")
-    accuracy(f"{what}: RMS spot (arcmin)", np.max(np.abs(r32["rms"] - res["rms"])) * ARCMIN, 1e-3, "f32 vs f64")
+    L, L_dv = f32_scales(model)
+    accuracy(f"{what}: GD max (deg)", np.max(r32["gd"]), 16 * EPS32 * 180 / math.pi, "float32")
+    accuracy(f"{what}: PA max", np.max(r32["pa"]), 16 * EPS32 * L_dv, "float32")
+    accuracy(f"{what}: VW positions (mm)", np.max(np.abs(r32["bundle"].pos - res["bundle"].pos)), 16 * EPS32 * L,
+             "f32 vs f64")
+    accuracy(f"{what}: contrast", np.max(np.abs(r32["contrast"] - res["contrast"])), 64 * EPS32, "f32 vs f64")
+    accuracy(f"{what}: RMS spot (arcmin)", np.max(np.abs(r32["rms"] - res["rms"])) * ARCMIN, 16 * EPS32 * ARCMIN,
+             "f32 vs f64")
 
 
 def check_first_order(accuracy, state, fo, what, precision="float64", rel=1e-9):
@@ -98,14 +116,14 @@ def test_telecentric_viewing_window_with_the_cdp_at_infinity(scenes, accuracy):
     m32, r32 = measure(design, "float32", depths=[0])
     assert model.depths[0] == 0.0
     accuracy("telecentric, 0 D: solved tunable-lens power (D)", abs(1000.0 * model.tl_power[0]), 1e-12)
-    accuracy("telecentric, 0 D: solved tunable-lens power (D)", abs(1000.0 * m32.tl_power[0]), 1e-4, "float32")
+    accuracy("telecentric, 0 D: solved tunable-lens power (D)", abs(1000.0 * m32.tl_power[0]), F32_D, "float32")
     fo = ini_first_order(1.0, G, F_EP, Z_XP, 17, 9, f_mla=F_MLA, cdp_diopters=0.0)
     assert math.isinf(fo.z_xp_image) and math.isinf(fo.z_cdp) and fo.p_ei == 1.0
-    for mod, prec, rel in ((model, "float64", 1e-9), (m32, "float32", 1e-4)):
+    for mod, prec, rel in ((model, "float64", 1e-9), (m32, "float32", 128 * EPS32)):
         st = mod.state(0)
         check_first_order(accuracy, st, fo, "telecentric, 0 D", prec, rel)
         accuracy("telecentric, 0 D: paraxial CDP depth (D)", abs(st.cdp_diopters_x), 1e-9 if prec == "float64"
-                 else 1e-4, prec)
+                 else F32_D, prec)
     check_ideal_metrics(accuracy, model, res, m32, r32, "telecentric, 0 D")
 
 
@@ -116,7 +134,7 @@ def test_display_in_the_lenslet_focal_plane(scenes, accuracy):
     model, res = measure(design, "float64")
     m32, r32 = measure(design, "float32")
     want = [1000.0 * (-1.0 / F_EP), 1000.0 * (1.0 / (Z_XP - 1000.0) - 1.0 / F_EP)]
-    for mod, prec, bound in ((model, "float64", 1e-9), (m32, "float32", 1e-4)):
+    for mod, prec, bound in ((model, "float64", 1e-9), (m32, "float32", F32_D)):
         err = max(abs(1000.0 * p - w) for p, w in zip(mod.tl_power, want))
         accuracy("g = f_MLA: tunable-lens power (D)", err, bound, prec)
     # At 1 D the eyepiece and tunable lens in contact are one thin lens of focal length f_eff.
@@ -124,7 +142,7 @@ def test_display_in_the_lenslet_focal_plane(scenes, accuracy):
     fo = ini_first_order(1.0, F_MLA, f_eff, Z_XP, 17, 9, f_mla=F_MLA, d_mla_ep=D_MLA_EP)
     assert math.isinf(fo.l) and fo.z_cdp == pytest.approx(1000.0, rel=1e-12)
     check_first_order(accuracy, model.state(1), fo, "g = f_MLA, 1 D")
-    check_first_order(accuracy, m32.state(1), fo, "g = f_MLA, 1 D", "float32", 1e-4)
+    check_first_order(accuracy, m32.state(1), fo, "g = f_MLA, 1 D", "float32", 128 * EPS32)
     st0 = model.state(0)
     assert all(math.isfinite(v) for v in (*st0.p_ei, *st0.d_v, *st0.D_v, st0.fov_diag_deg, st0.nyquist_cpd))
     check_ideal_metrics(accuracy, model, res, m32, r32, "g = f_MLA, 0 and 1 D")
@@ -139,14 +157,14 @@ def test_tunable_lens_at_the_ends_of_its_range(scenes, accuracy):
     model, res = measure(design, "float64")
     m32, r32 = measure(design, "float32")
     accuracy("-10 D end: solved power (D)", abs(1000.0 * model.tl_power[1] + 10.0), 1e-9)
-    accuracy("-10 D end: solved power (D)", abs(1000.0 * m32.tl_power[1] + 10.0), 1e-4, "float32")
+    accuracy("-10 D end: solved power (D)", abs(1000.0 * m32.tl_power[1] + 10.0), F32_D, "float32")
     accuracy("-10 D end: paraxial CDP depth (D)", abs(model.state(1).cdp_diopters_x - d_end), 1e-9)
     check_ideal_metrics(accuracy, model, res, m32, r32, "-10 D end")
     with pytest.raises(DesignError, match=r"ini\.tunable\.range_diopters = \[-10\.0, 10\.0\].*needs -10\.00"):
         IniModel(ideal(scenes, cdp_diopters=[0.0, d_end * (1 + 1e-4)]))
     # The other end, given explicitly: the state is finite and says where its image is.
     plus = ideal(scenes, cdp_diopters=[0.0], tunable={"power_diopters": [10.0]})
-    for prec, bound in (("float64", 1e-9), ("float32", 1e-4)):
+    for prec, bound in (("float64", 1e-9), ("float32", F32_D)):
         st = IniModel(plus, precision=prec).state(0)
         assert st.tunable_power_diopters == pytest.approx(10.0, abs=bound)
         assert all(math.isfinite(v) for v in (*st.p_ei, *st.d_v, *st.D_v, st.fov_diag_deg, st.nyquist_cpd))
@@ -162,6 +180,8 @@ def test_real_design_float32_agrees_with_float64(scenes, accuracy):
         m = copy.copy(model)
         m.spec = replace(model.spec, pupil=2, mtf_grid=8)
         runs[prec] = evaluate(m, sample(m, lenslets=[(8, 4), (16, 8)]))
+        if prec == "float64":
+            L, L_dv = f32_scales(model)
     a, b = runs["float64"], runs["float32"]
     same = a["bundle"].ok & b["bundle"].ok
     differ = a["bundle"].ok != b["bundle"].ok
@@ -170,9 +190,12 @@ def test_real_design_float32_agrees_with_float64(scenes, accuracy):
     inside[edge] = False
     assert not np.any(differ[..., inside]), "rays inside the stop fail in one precision only"
     accuracy("ini_coaxial: stop-edge rays whose status differs", np.mean(differ[..., edge]), 0.02, "f32 vs f64")
-    accuracy("ini_coaxial: VW positions (mm)", np.max(np.abs(a["bundle"].pos - b["bundle"].pos)[same]), 1e-4,
+    accuracy("ini_coaxial: VW positions (mm)", np.max(np.abs(a["bundle"].pos - b["bundle"].pos)[same]),
+             16 * EPS32 * L, "f32 vs f64")
+    accuracy("ini_coaxial: GD (deg)", np.max(np.abs(a["gd"] - b["gd"])), 16 * EPS32 * 180 / math.pi, "f32 vs f64")
+    accuracy("ini_coaxial: PA", np.max(np.abs(a["pa"] - b["pa"])), 16 * EPS32 * L_dv, "f32 vs f64")
+    accuracy("ini_coaxial: RMS spot (arcmin)", np.max(np.abs(a["rms"] - b["rms"])) * ARCMIN, 16 * EPS32 * ARCMIN,
              "f32 vs f64")
-    accuracy("ini_coaxial: GD (deg)", np.max(np.abs(a["gd"] - b["gd"])), 1e-3, "f32 vs f64")
-    accuracy("ini_coaxial: PA", np.max(np.abs(a["pa"] - b["pa"])), 1e-3, "f32 vs f64")
-    accuracy("ini_coaxial: RMS spot (arcmin)", np.max(np.abs(a["rms"] - b["rms"])) * ARCMIN, 1e-2, "f32 vs f64")
-    accuracy("ini_coaxial: contrast at Nyquist", np.max(np.abs(a["contrast"] - b["contrast"])), 1e-2, "f32 vs f64")
+    # The aberrated footprints' contrast moves with their rounded positions: 64 EPS32 · L / d_v.
+    accuracy("ini_coaxial: contrast at Nyquist", np.max(np.abs(a["contrast"] - b["contrast"])), 64 * EPS32 * L_dv,
+             "f32 vs f64")

@@ -78,10 +78,15 @@ def test_mesh_path_focal_stack_matches_the_analytic_path(scenes, tmp_path):
         assert doc["optics"] == optics
         imgs[(optics, seed)] = stack["images"][("display", 750.0)]
     mesh, a2, a3 = imgs[("mesh", 1)], imgs[("analytic", 2)], imgs[("analytic", 3)]
-    noise = relative_rmse(a3, a2)
+    noise = relative_rmse(a3, a2)  # per pixel and channel, of a difference of two seeds
     assert np.isfinite(mesh).all() and mesh.mean() > 0.1
     assert relative_rmse(mesh, a2) < 1.25 * noise
-    assert abs(mesh.mean() / a2.mean() - 1) < 0.03
+    # Means: 3 % (a brightness error) or 4 standard errors of a difference of two means
+    # (noise / sqrt(pixels): box pixels are independent, their RGB values are not; 1.1 % here,
+    # so 4.5 %), whichever is larger; ceiling 6 %.
+    tol = max(0.03, 4.0 * noise / np.sqrt(mesh.shape[0] * mesh.shape[1]))
+    assert tol <= 0.06, (tol, noise)
+    assert abs(mesh.mean() / a2.mean() - 1) < tol
 
 
 def test_view_defaults_have_one_owner(scenes, tmp_path, capsys):

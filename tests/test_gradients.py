@@ -102,24 +102,35 @@ def test_reverse_gradients_match_central_differences(freeform):
         with dr.suspend_grad():
             return float(spot_merit(tr, tr.params(values=v), rays)[0][0])
 
-    names = freeform.parameter_names()
-    fd = np.zeros_like(ad)
-    for i, v in enumerate(v0):
-        h = 1e-6 * max(1.0, abs(v)) if not names[i].endswith("curvature") else 1e-7
+    def central(i, h):
         vp, vm = v0.copy(), v0.copy()
         vp[i] += h
         vm[i] -= h
-        fd[i] = (f(vp) - f(vm)) / (2 * h)
+        return (f(vp) - f(vm)) / (2 * h)
+
+    names = freeform.parameter_names()
+    steps = [1e-6 * max(1.0, abs(v)) if not names[i].endswith("curvature") else 1e-7 for i, v in enumerate(v0)]
+    fd = np.array([central(i, h) for i, h in enumerate(steps)])
     scale = np.max(np.abs(fd))
     checked = np.abs(fd) > 1e-6 * scale
     rel = np.abs(ad - fd) / np.maximum(np.abs(fd), 1e-300)
-    report = {names[i]: (ad[i], fd[i], rel[i]) for i in np.where(checked)[0]}
+    # Bound: 1e-7 (float64 rounding of the merit over h) or 4x the difference's own noise,
+    # whichever is larger; at most 1e-5, which a wrong derivative must exceed. Noise: the same
+    # difference at 2h moves by 3x its truncation (∝ h²) plus its rounding (∝ 1/h); up to 8e-7
+    # of the derivative here (A.A6). It is measured where the error passes 1e-7 (5 of 41
+    # parameters), the only place the larger of the two can matter.
+    noise = np.zeros_like(fd)
+    for i in np.where(checked & (rel > 1e-7))[0]:
+        noise[i] = abs(central(i, 2 * steps[i]) - fd[i]) / abs(fd[i])
+    tol = np.maximum(1e-7, 4 * noise)
+    report = {names[i]: (ad[i], fd[i], rel[i], tol[i]) for i in np.where(checked)[0]}
     assert checked.sum() >= 20, report
     assert any(n.startswith("B.x") for n in np.array(names)[checked])
     assert any(".tilt_" in n for n in np.array(names)[checked])
     assert any(".index" in n for n in np.array(names)[checked])
-    worst = max(report.items(), key=lambda kv: kv[1][2])
-    assert worst[1][2] < 1e-6, worst
+    assert np.all(tol[checked] <= 1e-5), report
+    worst = max(report.items(), key=lambda kv: kv[1][2] / kv[1][3])
+    assert worst[1][2] < worst[1][3], worst
     # Parameters with no effect have (near) zero gradient in both.
     assert np.all(np.abs(ad[~checked]) <= 1e-5 * scale + 1e-12)
 
@@ -169,14 +180,25 @@ def test_batched_forward_jacobian_matches_central_differences(freeform):
     J, status = tr.jacobian(v0, rays, names)
     assert J.shape == (len(names), 6, dr.width(rays.p))
     ok = status == 0
-    for k, name in enumerate(names):
-        i = freeform.parameter_names().index(name)
-        h = 1e-6 * max(1.0, abs(v0[i]))
+    def central(i, h):
         vp, vm = v0.copy(), v0.copy()
         vp[i] += h
         vm[i] -= h
         with dr.suspend_grad():
             a, b = tr.trace(tr.params(values=vp), rays), tr.trace(tr.params(values=vm), rays)
-        fd = (np.asarray(a.p.y) - np.asarray(b.p.y)) / (2 * h)
+        return (np.asarray(a.p.y) - np.asarray(b.p.y)) / (2 * h)
+
+    for k, name in enumerate(names):
+        i = freeform.parameter_names().index(name)
+        h = 1e-6 * max(1.0, abs(v0[i]))
+        fd = central(i, h)
         err = np.max(np.abs(J[k, 1, ok] - fd[ok]))
-        assert err < 1e-6 * max(1.0, np.max(np.abs(fd[ok]))), (name, err)
+        # Bound (relative to s = max(1, |derivative|)): 1e-8 (float64 rounding over h) or 4x the
+        # difference's noise, its change at step 2h (3x its truncation plus its rounding; measured
+        # <= 2e-9), whichever is larger; at most 1e-6, which a wrong derivative must exceed. The
+        # second step is taken only where the error passes 1e-8 (none here).
+        s = max(1.0, np.max(np.abs(fd[ok])))
+        noise = np.max(np.abs(central(i, 2 * h) - fd)[ok]) if err >= 1e-8 * s else 0.0
+        tol = max(1e-8 * s, 4 * noise)
+        assert tol <= 1e-6 * s, (name, noise, s)
+        assert err < tol, (name, err, noise)

@@ -226,6 +226,19 @@ def test_gd_and_pa_against_a_nominal_reference(scenes, tmp_path):
     assert not (tmp_path / "b" / "metrics.json").exists()
 
 
+def _matches_central_difference(ad, diff, h, rtol, atol=0.0, what=""):
+    """``ad`` against the central difference ``diff(h)`` (a function of the step): within
+    ``rtol`` |fd| + ``atol`` or 4x the difference's own noise, its change at step 2h (3x its
+    truncation plus its rounding; measured <= 0.13 of the tolerance), whichever is larger. The
+    noise may not exceed 10x the tolerance (the ceiling a wrong derivative must pass)."""
+    fd = diff(h)
+    tol = rtol * np.abs(fd) + atol
+    noise = np.abs(diff(2 * h) - fd)
+    assert np.all(4 * noise <= 10 * tol), (what, np.max(noise / np.maximum(tol, 1e-300)))
+    err = np.abs(ad - fd)
+    assert np.all(err <= np.maximum(tol, 4 * noise)), (what, np.max(err / np.maximum(tol, 4 * noise, 1e-300)))
+
+
 def test_metric_derivatives_match_central_differences():
     """gd_deg_jvp, pa_jvp and rms_spot_jvp (the merit's derivatives of Eqs. 11, 12 and the
     RMS spot) against central differences of the value functions, and their values equal
@@ -243,29 +256,35 @@ def test_metric_derivatives_match_central_differences():
     np.testing.assert_array_equal(off, off0)
     np.testing.assert_allclose(np.sqrt(np.sum(wn * np.sum(off ** 2, -1), -1)), rms, rtol=1e-14)
     for k in range(K):
-        p, m = spot.rms_spot(r + h * dr[..., k], w, ok), spot.rms_spot(r - h * dr[..., k], w, ok)
-        np.testing.assert_allclose(drms[..., k], (p[0] - m[0]) / (2 * h), rtol=1e-6, atol=1e-12)
-        np.testing.assert_allclose(doff[..., k], (p[2] - m[2]) / (2 * h), rtol=1e-6, atol=1e-10)
+        def d_spot(t, i, k=k):
+            return (spot.rms_spot(r + t * dr[..., k], w, ok)[i] - spot.rms_spot(r - t * dr[..., k], w, ok)[i]) / (2 * t)
+        _matches_central_difference(drms[..., k], lambda t: d_spot(t, 0), h, 1e-6, 1e-12, "rms")
+        _matches_central_difference(doff[..., k], lambda t: d_spot(t, 2), h, 1e-6, 1e-10, "offsets")
     e, de = rng.normal(0, 0.02, (S, 2)), rng.normal(0, 1, (S, 2, K))
     e[0] = 0.0  # the GD residual vector is smooth through e = 0
     gd, dgd, v, dv = distortion.gd_deg_jvp(e, de)
     np.testing.assert_array_equal(gd, distortion.gd_deg(e, np.zeros_like(e)))
     np.testing.assert_allclose(np.hypot(v[:, 0], v[:, 1]), gd, rtol=1e-14, atol=1e-300)
     for k in range(K):
-        p, m = distortion.gd_deg_jvp(e + h * de[..., k], de), distortion.gd_deg_jvp(e - h * de[..., k], de)
-        np.testing.assert_allclose(dgd[1:, k], (p[0] - m[0])[1:] / (2 * h), rtol=1e-6)
-        np.testing.assert_allclose(dv[..., k], (p[2] - m[2]) / (2 * h), rtol=1e-6, atol=1e-7)
+        def d_gd(t, i, k=k):
+            p, m = distortion.gd_deg_jvp(e + t * de[..., k], de), distortion.gd_deg_jvp(e - t * de[..., k], de)
+            return (p[i] - m[i]) / (2 * t)
+        _matches_central_difference(dgd[1:, k], lambda t: d_gd(t, 0)[1:], h, 1e-6, what="gd")
+        _matches_central_difference(dv[..., k], lambda t: d_gd(t, 2), h, 1e-6, 1e-7, "gd vector")
     dev, ddev = rng.normal(0, 0.1, (S, 4, 2)), rng.normal(0, 1, (S, 4, 2, K))
     pa, dpa = footprint.pa_jvp(dev, ddev)
     np.testing.assert_array_equal(pa, footprint.pa(dev, np.zeros_like(dev), 1 / np.sqrt(2.0)))
     for k in range(K):
-        p, m = footprint.pa_jvp(dev + h * ddev[..., k], ddev)[0], footprint.pa_jvp(dev - h * ddev[..., k], ddev)[0]
-        np.testing.assert_allclose(dpa[:, k], (p - m) / (2 * h), rtol=1e-6)
+        def d_pa(t, k=k):
+            p, m = footprint.pa_jvp(dev + t * ddev[..., k], ddev)[0], footprint.pa_jvp(dev - t * ddev[..., k], ddev)[0]
+            return (p - m) / (2 * t)
+        _matches_central_difference(dpa[:, k], d_pa, h, 1e-6, what="pa")
     rc, pc = rng.normal(0, 0.05, (S, 9, 2)), rng.normal(0, 0.05, (S, 9, 2))
     drc, dpc = rng.normal(0, 1, (S, 9, 2, K)), rng.normal(0, 1, (S, 9, 2, K))
     ld, dld = distortion.local_distortion_jvp(rc, drc, pc, dpc)
     np.testing.assert_array_equal(ld, distortion.local_distortion(rc, pc))
     for k in range(K):
-        p = distortion.local_distortion(rc + h * drc[..., k], pc + h * dpc[..., k])
-        m = distortion.local_distortion(rc - h * drc[..., k], pc - h * dpc[..., k])
-        np.testing.assert_allclose(dld[..., k], (p - m) / (2 * h), rtol=1e-6, atol=1e-9)
+        def d_ld(t, k=k):
+            p = distortion.local_distortion(rc + t * drc[..., k], pc + t * dpc[..., k])
+            return (p - distortion.local_distortion(rc - t * drc[..., k], pc - t * dpc[..., k])) / (2 * t)
+        _matches_central_difference(dld[..., k], d_ld, h, 1e-6, 1e-9, "local distortion")

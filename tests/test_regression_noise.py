@@ -40,8 +40,12 @@ def test_reseeds_stay_below_the_threshold_and_z_is_calibrated():
     for name, z in zs.items():
         z = np.array(z)
         assert np.max(np.abs(z)) < Z_MAX, (name, np.max(np.abs(z)))
+        # Noise of the 120 trials' figures: the mean's standard error std/sqrt(n) (~0.09) and
+        # the standard deviation's std/sqrt(2(n - 1)) (~0.07).
+        sem, se_std = np.std(z) / np.sqrt(z.size), np.std(z) / np.sqrt(2 * (z.size - 1))
+        assert 4 * se_std < 0.3, (name, se_std)  # the calibration window is wider than the noise
         assert 0.5 < np.std(z) < 1.3, (name, np.std(z))  # about N(0, 1): self-normalised
-        assert abs(np.mean(z)) < 0.35, (name, np.mean(z))
+        assert abs(np.mean(z)) < 4 * sem, (name, np.mean(z), sem)  # zero mean, to 4 standard errors
 
 
 def test_a_blur_of_a_few_percent_of_detail_is_detected():
@@ -56,7 +60,12 @@ def test_a_blur_of_a_few_percent_of_detail_is_detected():
         np.sum(noise.bandpass(np.repeat(mu[..., None], 3, 2)) ** 2) - 1
     assert -0.2 < truth_loss < -0.01
     assert de.z < -Z_MAX and de.value < -de.threshold
-    assert abs(de.value - truth_loss) < 0.35 * abs(truth_loss)  # unbiased by the noise
+    # Unbiased by the noise: within 10 % of the loss (the reconstruction filter's own blur) or
+    # 4 standard errors of the estimate (threshold / z_max, 0.014 here), whichever is larger;
+    # the ceiling keeps a zero loss failing.
+    tol = max(0.1 * abs(truth_loss), 4 * de.threshold / Z_MAX)
+    assert tol < 0.75 * abs(truth_loss), (tol, truth_loss)
+    assert abs(de.value - truth_loss) < tol, (de.value, truth_loss, tol)
 
 
 def test_a_one_pixel_shift_is_a_change_not_a_blur():
@@ -68,7 +77,13 @@ def test_a_one_pixel_shift_is_a_change_not_a_blur():
     ch = noise.change(b, c, Z_MAX)
     truth = np.sqrt(np.mean((shifted - mu) ** 2)) / np.mean(mu)
     assert ch.z > Z_MAX and ch.value > ch.threshold
-    assert abs(ch.value / truth - 1) < 0.25  # the noise-free RMS change (blurred by the filter)
+    # The noise-free RMS change (blurred by the filter: 14 % less) to 25 %, or 4 standard errors
+    # of the estimate, whichever is larger (the energy's is threshold² / z_max; ~4 % of the
+    # change here); ceiling 50 %.
+    se = ch.threshold ** 2 / (2 * Z_MAX * ch.value) / truth
+    tol = max(0.25, 4 * se)
+    assert tol <= 0.5, (tol, se)
+    assert abs(ch.value / truth - 1) < tol, (ch.value / truth, tol)
     assert abs(noise.detail(b, c, Z_MAX).z) < Z_MAX
 
 

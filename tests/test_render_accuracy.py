@@ -13,6 +13,8 @@ from lfsim.render.display import DisplayLayout
 from lfsim.render.elemental import elemental_images
 from lfsim.render.eye import EyeSpec
 
+EPS32 = 2.0**-24  # float32 unit roundoff (Mitsuba's mesh path traces in float32)
+
 WALL = {"objects": [{"corners": [[-400, -300, -600], [400, -300, -600], [-400, 300, -600]],
                      "texture": {"type": "checker", "period_mm": 20.0}}]}
 
@@ -32,7 +34,9 @@ def test_thin_lens_meshes_equal_the_analytic_path(scenes):
     out = _pairs(scenes, "ini_ideal", (0.125,))
     ref = out["analytic"][0]
     assert ref.mean() > 0.1
-    assert relative_rmse(out[0.125][0], ref) < 1e-4
+    # Same rays: only the mesh path's float32 rounding differs (measured: 6e-6 of the mean,
+    # ~100 EPS32). Bound 1024 EPS32 (6e-5): 10x that rounding noise.
+    assert relative_rmse(out[0.125][0], ref) < 1024 * EPS32
 
 
 def test_mesh_error_falls_with_tessellation(scenes):
@@ -40,10 +44,18 @@ def test_mesh_error_falls_with_tessellation(scenes):
     out = _pairs(scenes, "ini_coaxial", dens)
     ref = out["analytic"][0]
     e = [relative_rmse(out[S][0], ref) for S in dens]
-    assert e[0] > e[1] > e[2]
     assert np.isfinite(e).all()
-    # The default tessellation is within 1 % of the analytic path (RMSE / mean).
-    assert e[2] < 0.01
+    # Noise of each e (a mean over pixels of independent squared differences): its standard
+    # error from the pixels' spread, se(e) = e · std(d²) / (2 mean(d²) sqrt(n)) (~0.0014 at S = 1).
+    se = [e_ * np.std(d2) / (2 * np.mean(d2) * np.sqrt(d2.size))
+          for e_, d2 in ((e_, ((out[S][0] - ref) ** 2).ravel()) for e_, S in zip(e, dens))]
+    # Falls by more than 4 x the noise of both errors compared.
+    assert all(e[i] - e[i + 1] > 4 * np.hypot(se[i], se[i + 1]) for i in range(2)), (e, se)
+    # The default tessellation is within 1 % of the analytic path (RMSE / mean), a bound
+    # above 4 x the estimate's noise (ceiling 2 %).
+    tol = max(0.01, 4 * se[2])
+    assert tol <= 0.02, (tol, se)
+    assert e[2] < tol, (e, se)
 
 
 def test_tessellation_scales_the_defaults():

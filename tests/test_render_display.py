@@ -31,10 +31,15 @@ def test_layout_assigns_pixels_to_the_nearest_elemental_image(scenes):
     assert np.mean(px[..., 0]) == pytest.approx(0.0, abs=1e-12)
 
 
-@pytest.mark.parametrize("precision,tol", [("float64", 1e-12), ("float32", 5e-5)])
-def test_reverse_path_returns_forward_rays_to_their_pixel(coaxial, precision, tol):
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+def test_reverse_path_returns_forward_rays_to_their_pixel(coaxial, precision):
     """Display pixel → (forward, aimed) → viewing window → (reversed) → the same pixel."""
     lay = DisplayLayout.from_model(coaxial)
+    # Rounding noise of the round trip: coordinates as far as the viewing window (z ~ 374 mm)
+    # rounded to the precision's machine epsilon, eps · z (float32 4.5e-5 mm, measured 0.17 of it;
+    # float64 8.3e-14 mm, measured 0.25). Bound 2 eps · z, at most 1/50 of a display pixel.
+    tol = 2 * np.finfo(precision).eps * abs(coaxial.o_vw[2])
+    assert tol < lay.pixel_pitch / 50, tol
     xy = lay.pixel_centers().reshape(-1, 2)[::1499]
     m, n = lay.lenslet_of(xy)
     rev = ReverseOptics(coaxial, 0, precision)
