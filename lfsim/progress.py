@@ -71,13 +71,19 @@ class _KernelCounter:
         return True
 
 
-def _emit(msg: str) -> None:
-    if sys.stderr.isatty():
-        from tqdm import tqdm
+_EMIT = threading.Lock()
 
-        tqdm.write(msg, file=sys.stderr)
-    else:
-        print(msg, file=sys.stderr, flush=True)
+
+def _emit(msg: str) -> None:
+    """One whole line on standard error (one write, so it never merges with another thread's)."""
+    with _EMIT:
+        if sys.stderr.isatty():
+            from tqdm import tqdm
+
+            tqdm.write(msg, file=sys.stderr)
+        else:
+            sys.stderr.write(msg + "\n")
+            sys.stderr.flush()
     touch()
 
 
@@ -87,7 +93,7 @@ def heartbeat(what: str, after: float | None = None, interval: float | None = No
 
     The line says "compiling kernels for this design" while Dr.Jit writes new
     kernels to its cache, else that ``what`` is still working; at the end, a
-    run that compiled kernels for 2 s or more says how many it cached.
+    run that compiled kernels for 2 s or more says how many it compiled.
     """
     if not enabled:
         yield
@@ -129,7 +135,7 @@ def heartbeat(what: str, after: float | None = None, interval: float | None = No
         th.join()
         counter.poll()
         if spoke[0] and counter.new:
-            _emit(f"{counter.new} kernels compiled and cached in {counter.dir} (later runs of this design load them)")
+            _emit(f"{counter.new} kernels compiled this run (Dr.Jit keeps them in {counter.dir})")
 
 
 class LogBar:

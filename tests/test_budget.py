@@ -110,3 +110,19 @@ def test_sweep_probe_refuses_a_long_run_and_leaves_the_folder(scenes, tmp_path, 
     assert "sweep points: 6 more at" in err and "(measured on the second)" in err and "--max-hours" in err, err
     assert sorted(p.name for p in out.iterdir()) == ["sweep.json"] and (out / "sweep.json").read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["sw"]
+
+
+def test_tolerance_refused_after_its_probe_leaves_nothing(scenes, tmp_path, capsys):
+    out = tmp_path / "tol"
+    assert main(["tolerance", str(scenes / "ini_freeform_optimized.toml"), "--out", str(out), "--trials", "4",
+                 "--no-sensitivity", "--scheduler", "serial", "--max-hours", "1e-9"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "tolerance trials and ±limit runs:" in err and "(measured on the second)" in err, err
+    assert not out.exists()
+
+
+def test_small_sweep_is_probed_too(scenes, tmp_path, capsys):
+    out = tmp_path / "sw"
+    assert main(["sweep", str(scenes / "ini_ideal.toml"), "--set", "mla.pitch_x=0.99:1.01:3", "--stride", "8,8",
+                 "--scheduler", "serial", "--out", str(out), "--max-hours", "1e-9"]) == 2
+    assert "sweep points: 1 more at" in capsys.readouterr().err and not out.exists()

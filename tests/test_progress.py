@@ -23,7 +23,7 @@ def test_heartbeat_names_kernel_compiles(tmp_path, monkeypatch, capsys):
     lines = _lines(capsys)
     assert any(line.startswith("compiling kernels for this design (") and "so far; cached for later runs" in line
                for line in lines), lines
-    assert lines[-1] == f"3 kernels compiled and cached in {cache} (later runs of this design load them)"
+    assert lines[-1] == f"3 kernels compiled this run (Dr.Jit keeps them in {cache})"
 
 
 def test_heartbeat_reports_other_long_work_and_stays_quiet_when_bars_move(tmp_path, monkeypatch, capsys):

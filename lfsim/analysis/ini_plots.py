@@ -69,8 +69,9 @@ def contrast_map(res, path, k=None):
     worst = float(np.min(contrast_min(res)[sel]))
     found = f" (worst {worst:.3f}, searched between fields)" if res.get("refined") else ""
     # over the whole figure (axes and colour bar), wrapped: a long design name never runs under the bar
-    fig.suptitle(textwrap.fill(f"{model.design.name}: contrast at Nyquist, CDP {model.depths[k]:g} D", 95) + "\n"
-                 + f"min {np.min(c):.3f}, mean {np.mean(c):.3f} over {c.size} fields{found}", fontsize=9)
+    fig.suptitle(textwrap.fill(model.design.name, 95) + "\n"
+                 + f"contrast at Nyquist, CDP {model.depths[k]:g} D: min {np.min(c):.3f}, mean {np.mean(c):.3f} "
+                 f"over {c.size} fields{found}", fontsize=9)
     save_figure(fig, path, bbox_inches="tight")
     plt.close(fig)
 

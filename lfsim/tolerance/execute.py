@@ -70,7 +70,7 @@ def batches(units: list, batch: int) -> list[list]:
 
 
 #: Runs of at least this many units time two of them here first (:func:`probe`).
-PROBE_AFTER = 8
+PROBE_AFTER = 3
 #: Bytes this process holds per unit record (the record store and the summary).
 BYTES_PER_RECORD = 4096.0
 

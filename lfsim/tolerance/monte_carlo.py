@@ -259,6 +259,8 @@ def run_tolerance(design: Design, out_dir, trials: int | None = None, seed: int 
         if old.get("fingerprint") != fp:
             raise RunMismatch(f"{out}: holds a run of another design or seed (fingerprint {old.get('fingerprint')} "
                               f"!= {fp}): choose another --out")
+    created = not out.exists()
+    fresh = not (run_file.exists() or len(sens) or len(mc_store))  # this call starts the run
     write_json(run_file, {"design": design.path, "fingerprint": fp, "seed": seed,
                           "tolerances": list(spec.names), "compensators": list(spec.compensators)})
     sens_units, mc_units = units_for(spec, seed, trials, sensitivity)
@@ -270,7 +272,7 @@ def run_tolerance(design: Design, out_dir, trials: int | None = None, seed: int 
         from ..progress import bar as tqdm
 
         bar = tqdm(total=len(sens_units) + len(mc_units), initial=len(sens_units) + len(mc_units) - len(todo),
-                   desc="trials", unit="trial")
+                   desc=f"trials ({len(mc_units)}) and ±limit runs ({len(sens_units)})", unit="run")
 
     def on_records(recs):
         for rec in recs:
@@ -286,7 +288,14 @@ def run_tolerance(design: Design, out_dir, trials: int | None = None, seed: int 
     try:
         if todo:
             where = execute.run(job, todo, batch=batch, scheduler=scheduler, workers=workers, serial=serial,
-                                on_records=on_records, estimate="tolerance trials", log=log)
+                                on_records=on_records, estimate="tolerance trials and ±limit runs", log=log)
+    except budget.BudgetError:  # refused after the probe: a run this call started leaves nothing behind
+        if fresh:
+            for f in (run_file, out / "sensitivity.jsonl", out / "trials.jsonl"):
+                f.unlink(missing_ok=True)
+            if created and out.is_dir() and not any(out.iterdir()):
+                out.rmdir()
+        raise
     finally:
         if bar:
             bar.close()
