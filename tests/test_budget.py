@@ -126,3 +126,10 @@ def test_small_sweep_is_probed_too(scenes, tmp_path, capsys):
     assert main(["sweep", str(scenes / "ini_ideal.toml"), "--set", "mla.pitch_x=0.99:1.01:3", "--stride", "8,8",
                  "--scheduler", "serial", "--out", str(out), "--max-hours", "1e-9"]) == 2
     assert "sweep points: 1 more at" in capsys.readouterr().err and not out.exists()
+
+
+def test_flag_type_errors_are_one_line_naming_the_verb(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["focal-stack", "--max-hours", "abc"])
+    assert e.value.code == 2
+    assert capsys.readouterr().err == "lfsim: error: focal-stack: argument --max-hours: invalid float value: 'abc'\n"

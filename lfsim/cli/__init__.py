@@ -24,7 +24,8 @@ class _Parser(argparse.ArgumentParser):
     """argparse with a one-line error (exit status 2) instead of the usage text."""
 
     def error(self, message):
-        self.exit(2, f"lfsim: error: {self.prog}: {' '.join(message.split())}\n")
+        verb = self.prog.removeprefix("lfsim").strip()  # "lfsim focal-stack" -> "focal-stack"
+        self.exit(2, f"lfsim: error: {verb + ': ' if verb else ''}{' '.join(message.split())}\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
