@@ -44,12 +44,13 @@ def kernel_cache() -> Path:
 
 
 class _KernelCounter:
-    """Counts kernels written to Dr.Jit's cache since it was made (a directory stat per poll)."""
+    """Counts kernels written to Dr.Jit's cache since it was made: the file names then and now
+    (listed only when the folder's mtime changed, so a poll is one stat)."""
 
     def __init__(self):
         self.dir = kernel_cache()
-        self.t0 = time.time()
         self.mtime = self._mtime()
+        self.start = self._names()
         self.new = 0
 
     def _mtime(self) -> float:
@@ -58,16 +59,19 @@ class _KernelCounter:
         except OSError:
             return 0.0
 
+    def _names(self) -> set[str]:
+        try:
+            return set(os.listdir(self.dir))
+        except OSError:
+            return set()
+
     def poll(self) -> bool:
         """Whether kernels were written since the last poll (updates :attr:`new`)."""
         m = self._mtime()
         if m == self.mtime:
             return False
         self.mtime = m
-        try:
-            self.new = sum(1 for e in os.scandir(self.dir) if e.stat().st_mtime >= self.t0)
-        except OSError:
-            return False
+        self.new = len(self._names() - self.start)
         return True
 
 
