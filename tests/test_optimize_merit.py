@@ -38,6 +38,10 @@ def freeform_merit(tmp_path_factory):
     return IniMerit(d, d.optimize)
 
 
+def _dense(M, x):
+    return M.evaluate(x, derivatives=False, dense=True)[0]
+
+
 def test_merit_jacobian_matches_central_differences(freeform_merit):
     """Every residual block (spot, spot per axis, GD, PA, distortion, crosstalk, TIR,
     apertures, EFL, thickness) against
@@ -45,7 +49,7 @@ def test_merit_jacobian_matches_central_differences(freeform_merit):
     paraxial references moving with the design."""
     M = freeform_merit
     x0 = M.x0
-    r, J, det = M.evaluate(x0)
+    r, J, det = M.evaluate(x0, dense=True)  # every row, so that rows line up between points
     assert np.isfinite(r).all() and np.isfinite(J).all() and det["rays_lost"] == 0
     assert det["spot_axis_max"] > 0 and det["gd_max"] > 0 and det["gd_mean"] > 0  # the hinge blocks are active
     assert det["prism_thickness"] > 0
@@ -55,7 +59,7 @@ def test_merit_jacobian_matches_central_differences(freeform_merit):
         xp, xm = x0.copy(), x0.copy()
         xp[j] += h
         xm[j] -= h
-        rp, rm = M.residuals(xp), M.residuals(xm)
+        rp, rm = _dense(M, xp), _dense(M, xm)
         fd = (rp - rm) / (2 * h)
         # a hinge row that switches on or off between x − h and x + h has no central difference
         kink = (rp == 0.0) != (rm == 0.0)
@@ -81,7 +85,7 @@ def test_merit_jacobian_matches_central_differences(freeform_merit):
                     xp2, xm2 = x0.copy(), x0.copy()
                     xp2[j] += 2 * h
                     xm2[j] -= 2 * h
-                    second = (M.residuals(xp2), M.residuals(xm2))
+                    second = (_dense(M, xp2), _dense(M, xm2))
                 rp2, rm2 = second
                 smooth = ~(kink | ((rp2 == 0.0) != (rm2 == 0.0)))[blk]
                 noise = np.abs((rp2 - rm2)[blk] / (4 * h) - fd[blk])[smooth].max(initial=0.0)
@@ -89,6 +93,32 @@ def test_merit_jacobian_matches_central_differences(freeform_merit):
             assert tol <= 2e-5 * scale + 1e-7, (M.cols[j].label, name, noise, scale)
             assert err <= tol, (M.cols[j].label, name, err, scale, noise)
         assert kink.sum() <= 2, (M.cols[j].label, kink.sum())
+
+
+def test_lean_jacobian_equals_the_dense_one(freeform_merit, monkeypatch):
+    """The lean evaluation (sub-systems in chunks, the re-aiming and the display
+    layout's chain rule inside the kernel, inactive hinge rows dropped) gives the
+    dense evaluation's merit, JᵀJ, Jᵀr and block sums to 1e-12 (relative to the
+    largest entry), at a point where hinges are active and inactive."""
+    from lfsim.optimize import merit as merit_mod
+
+    M = freeform_merit
+    x = M.x0 * (1.0 + 1e-3)
+    rd, Jd, detd = M.evaluate(x, dense=True)
+    monkeypatch.setattr(merit_mod, "MERIT_RAY_COPIES", 3000)  # several chunks
+    r, J, det = M.evaluate(x)
+    assert r.size < 0.5 * rd.size  # rows were dropped
+    S = len(M.figures["subs"])
+    assert 3000 // ((len(M.cols) + 2) * 9 * len(M.rho)) < S  # and the sub-systems came in chunks
+    assert abs(r @ r - rd @ rd) <= 1e-12 * (rd @ rd)
+    for a, b in ((J.T @ J, Jd.T @ Jd), (J.T @ r, Jd.T @ rd)):
+        assert np.max(np.abs(a - b)) <= 1e-12 * np.max(np.abs(b))
+    for name, v in detd.items():
+        if isinstance(v, float):
+            assert det[name] == pytest.approx(v, rel=1e-12, abs=1e-300), name
+    assert sum(v for k, v in det.items() if k in ("gd_max", "spot_axis_max", "crosstalk")) > 0
+    rr = M.residuals(x)  # the residuals alone (rows with r = 0 dropped): the same merit
+    assert rr.size <= r.size and abs(rr @ rr - r @ r) <= 1e-12 * (r @ r)
 
 
 def test_residuals_are_deterministic(freeform_merit):

@@ -397,10 +397,10 @@ class RayJacobian:
     d_dir: np.ndarray
     d_surf: np.ndarray
     d_cos_in: np.ndarray
-    ds_pos: np.ndarray  # (N, 2, 2): total derivatives w.r.t. the display point (x, y)
-    ds_dir: np.ndarray  # (N, 3, 2)
-    ds_surf: np.ndarray  # (N, S, 2, 2)
-    ds_cos_in: np.ndarray  # (N, S, 2)
+    ds_pos: np.ndarray | None  # (N, 2, 2): total derivatives w.r.t. the display point (x, y)
+    ds_dir: np.ndarray | None  # (N, 3, 2)
+    ds_surf: np.ndarray | None  # (N, S, 2, 2)
+    ds_cos_in: np.ndarray | None  # (N, S, 2); all four None when ``ds`` was folded in
 
 
 #: Rays × derivative copies per launch of :func:`trace_rays_jacobian` (about 3.4 kB each with a
@@ -409,30 +409,39 @@ MAX_RAY_COPIES = 1_000_000
 
 
 def trace_rays_jacobian(model: IniModel, s, m, n, rho, k, columns, record=(), iterations: int = 30,
-                        derivatives: bool = True, max_ray_copies: int | None = None) -> RayJacobian:
+                        derivatives: bool = True, max_ray_copies: int | None = None, ds=None) -> RayJacobian:
     """:func:`trace_rays` plus forward-mode derivatives, in launches of at most
-    ``max_ray_copies`` rays × (K + 4) copies (default :data:`MAX_RAY_COPIES`).
+    ``max_ray_copies`` rays × (K + 4) copies (K + 2 with ``ds``; default
+    :data:`MAX_RAY_COPIES`).
 
     Every ray is aimed and differentiated on its own, so the chunks give the
-    same numbers as one launch; only the peak memory is bounded.
+    same numbers as one launch; only the peak memory is bounded. ``ds``
+    (N, 2, K), optional: the derivative of each ray's display point with
+    respect to each column (a display layout that moves with the design). With
+    it, copy j moves column j and the display point together, the re-aiming
+    is applied inside the kernel, and only the K total derivatives come back
+    (``ds_*`` are None): the same totals as ``d_* + ds_* · ds`` without
+    ``ds``, in about half the memory and host time.
     """
     N = len(np.asarray(s).reshape(-1, 2))
-    C = len(columns) + 4 if derivatives else 1
+    C = len(columns) + (4 if ds is None else 2) if derivatives else 1
     budget = MAX_RAY_COPIES if max_ray_copies is None else int(max_ray_copies)
     step = max(1, budget // C)
     if N <= step:
-        return _trace_rays_jacobian(model, s, m, n, rho, k, columns, record, iterations, derivatives)
+        return _trace_rays_jacobian(model, s, m, n, rho, k, columns, record, iterations, derivatives, ds)
     s, rho = np.asarray(s).reshape(-1, 2), np.asarray(rho).reshape(-1, 2)
     m, n, k = (np.broadcast_to(np.asarray(a), (N,)) for a in (m, n, k))
     parts = [_trace_rays_jacobian(model, s[i:i + step], m[i:i + step], n[i:i + step], rho[i:i + step],
-                                  k[i:i + step], columns, record, iterations, derivatives)
+                                  k[i:i + step], columns, record, iterations, derivatives,
+                                  None if ds is None else ds[i:i + step])
              for i in range(0, N, step)]
-    return RayJacobian(**{f.name: np.concatenate([getattr(p, f.name) for p in parts], axis=0)
+    return RayJacobian(**{f.name: (None if getattr(parts[0], f.name) is None else
+                                   np.concatenate([getattr(p, f.name) for p in parts], axis=0))
                           for f in dc_fields(RayJacobian)})
 
 
 def _trace_rays_jacobian(model: IniModel, s, m, n, rho, k, columns, record=(), iterations: int = 30,
-                         derivatives: bool = True) -> RayJacobian:
+                         derivatives: bool = True, ds=None) -> RayJacobian:
     """:func:`trace_rays` plus forward-mode derivatives, in one Dr.Jit launch.
 
     ``columns``: K pairs ``(parameter name, CDP state or None)``; a column
@@ -440,8 +449,9 @@ def _trace_rays_jacobian(model: IniModel, s, m, n, rho, k, columns, record=(), i
     tunable lens's power). The rays are replicated K + 2 times: copy j moves
     column j, the last two copies move the launch slope (x, y); a single AD
     seed then yields every column in one forward pass (two more copies move
-    the display point), and the aim correction
-    ``dt/dp = −(∂stop/∂t)⁻¹ ∂stop/∂p`` turns partial into total derivatives.
+    the display point, unless ``ds`` moves it in the column copies), and the
+    aim correction ``dt/dp = −(∂stop/∂t)⁻¹ ∂stop/∂p`` turns partial into total
+    derivatives (in numpy, or with ``ds`` in a second kernel on the device).
     ``record``: surface indices whose hits (relative to the lenslet axis) and
     incidence cosines are returned too.
     """
@@ -450,7 +460,8 @@ def _trace_rays_jacobian(model: IniModel, s, m, n, rho, k, columns, record=(), i
     s_r, m_r, n_r, k_r, t, _ = _aim(model, s, m, n, rho, k, iterations)
     N, nb, npar = len(s_r), len(model.depths), tr.n_params
     K = len(columns) if derivatives else 0
-    C = K + 4 if derivatives else 1
+    fused = derivatives and ds is not None
+    C = (K + 2 if fused else K + 4) if derivatives else 1
     base = np.concatenate([model.values(i) for i in range(nb)])
     mask = np.zeros((C, nb, npar))
     for c, (name, state) in enumerate(columns[:K]):
@@ -485,8 +496,15 @@ def _trace_rays_jacobian(model: IniModel, s, m, n, rho, k, columns, record=(), i
         tx = g(t[:, 0], T.Float) + seed_r * dr.select(copy == opq(K, "UInt32"), 1.0, 0.0)
         ty = g(t[:, 1], T.Float) + seed_r * dr.select(copy == opq(K + 1, "UInt32"), 1.0, 0.0)
         one = dr.full(T.Float, 1.0, C * N)
-        sx = g(s_r[:, 0], T.Float) + seed_r * dr.select(copy == opq(K + 2, "UInt32"), 1.0, 0.0)
-        sy = g(s_r[:, 1], T.Float) + seed_r * dr.select(copy == opq(K + 3, "UInt32"), 1.0, 0.0)
+        if fused:  # copy j < K moves its column's display point by ds[:, :, j]
+            dsk = np.zeros((C, N, 2))
+            dsk[:K] = np.moveaxis(np.asarray(ds, dtype=np.float64).reshape(N, 2, K), 2, 0)
+            dsx, dsy = (from_numpy(T.Float, np.ascontiguousarray(dsk[..., a]).ravel()) for a in (0, 1))
+            sx = g(s_r[:, 0], T.Float) + seed_r * dsx
+            sy = g(s_r[:, 1], T.Float) + seed_r * dsy
+        else:
+            sx = g(s_r[:, 0], T.Float) + seed_r * dr.select(copy == opq(K + 2, "UInt32"), 1.0, 0.0)
+            sy = g(s_r[:, 1], T.Float) + seed_r * dr.select(copy == opq(K + 3, "UInt32"), 1.0, 0.0)
         # Rays start on the display plane z = −g of their block: the gap is a column like any other.
         o = T.Array3(sx, sy, -dr.gather(T.Float, P, block * opq(npar, "UInt32") + tr.index[GAP]))
         out = tr.trace(P, RayState(o, T.Array3(tx, ty, one)), block=block,
@@ -522,9 +540,15 @@ def _trace_rays_jacobian(model: IniModel, s, m, n, rho, k, columns, record=(), i
         # One kernel for every value and derivative (evaluated one by one, each would
         # re-run the whole trace).
         dr.eval(*outs, out.status, *grads)
-    val = np.stack([np.asarray(v, dtype=np.float64)[:N] for v in outs], axis=1)  # (N, O)
-    status = np.asarray(out.status)[:N].astype(np.int64)
+        if fused:
+            vals0, status0, totals = _reaimed_totals(T, opq, outs, out.status, grads, N, K)
     nS = len(record)
+    if fused:
+        val = np.stack([np.asarray(v, dtype=np.float64) for v in vals0], axis=1)  # (N, O)
+        status = np.asarray(status0).astype(np.int64)
+    else:
+        val = np.stack([np.asarray(v, dtype=np.float64)[:N] for v in outs], axis=1)  # (N, O)
+        status = np.asarray(out.status)[:N].astype(np.int64)
     surf = val[:, 7:].reshape(N, nS, 3) if nS else np.zeros((N, 0, 3))
     res = dict(pos=val[:, 2:4], dir=val[:, 4:7], status=status, surf=surf[..., :2], cos_in=surf[..., 2])
     if not derivatives:
@@ -532,6 +556,13 @@ def _trace_rays_jacobian(model: IniModel, s, m, n, rho, k, columns, record=(), i
         return RayJacobian(**res, d_pos=z((N, 2, 0)), d_dir=z((N, 3, 0)), d_surf=z((N, nS, 2, 0)),
                            d_cos_in=z((N, nS, 0)), ds_pos=z((N, 2, 2)), ds_dir=z((N, 3, 2)),
                            ds_surf=z((N, nS, 2, 2)), ds_cos_in=z((N, nS, 2)))
+    if fused:
+        tp = np.stack([np.asarray(v, dtype=np.float64).reshape(K, N) for v in totals], axis=1)  # (K, O', N)
+        tp = np.transpose(tp, (2, 1, 0))  # (N, O', K): the outputs but the stop hit (it is held)
+        tp[status != 0] = 0.0
+        sp_ = tp[:, 5:, :].reshape(N, nS, 3, K) if nS else np.zeros((N, 0, 3, K))
+        return RayJacobian(**res, d_pos=tp[:, 0:2], d_dir=tp[:, 2:5], d_surf=sp_[:, :, :2],
+                           d_cos_in=sp_[:, :, 2], ds_pos=None, ds_dir=None, ds_surf=None, ds_cos_in=None)
     G = np.stack([np.asarray(gv, dtype=np.float64).reshape(C, N) for gv in grads], axis=1)  # (C, O, N)
     G = np.moveaxis(G, 2, 0)  # (N, C, O)
     dt = G[:, K:K + 2, :]  # (N, 2, O)
@@ -551,3 +582,37 @@ def _trace_rays_jacobian(model: IniModel, s, m, n, rho, k, columns, record=(), i
     ss_ = ts[:, 7:, :].reshape(N, nS, 3, 2) if nS else np.zeros((N, 0, 3, 2))
     return RayJacobian(**res, d_pos=tp[:, 2:4], d_dir=tp[:, 4:7], d_surf=sp_[:, :, :2], d_cos_in=sp_[:, :, 2],
                        ds_pos=ts[:, 2:4], ds_dir=ts[:, 4:7], ds_surf=ss_[:, :, :2], ds_cos_in=ss_[:, :, 2])
+
+
+def _reaimed_totals(T, opq, outs, status, grads, N: int, K: int):
+    """Total derivatives of ``outs[2:]`` for copies 0..K−1, re-aimed on the device.
+
+    Lane (j, i) of the forward pass holds the partial derivatives of ray i for
+    copy j; copies K and K + 1 hold those for the launch slope. Holding the
+    stop hit ``outs[0:2]`` fixed, ``dt = −A⁻¹ ∂stop/∂p`` with A = ∂stop/∂t,
+    and ``total = ∂o/∂p + ∂o/∂t · dt`` (implicit function theorem). Rays that
+    failed, a singular A or a non-finite total give 0. Returns the values of
+    copy 0 (N lanes), its status and the K·N-lane totals of ``outs[2:]``.
+    """
+    i = dr.arange(T.UInt32, K * N)
+    ray = i % opq(N, "UInt32")
+    first = dr.arange(T.UInt32, N)
+    vals = [dr.gather(T.Float, v, first) for v in outs]
+    st = dr.gather(type(status), status, first)
+    tx_lane = ray + opq(K * N, "UInt32")
+    ty_lane = tx_lane + opq(N, "UInt32")
+    a, b = dr.gather(T.Float, grads[0], tx_lane), dr.gather(T.Float, grads[0], ty_lane)
+    c, d = dr.gather(T.Float, grads[1], tx_lane), dr.gather(T.Float, grads[1], ty_lane)
+    px, py = dr.gather(T.Float, grads[0], i), dr.gather(T.Float, grads[1], i)
+    det = a * d - b * c
+    good = (dr.gather(type(status), status, ray) == 0) & (det != 0.0)
+    inv = 1.0 / dr.select(good, det, 1.0)
+    dtx = -(d * px - b * py) * inv
+    dty = -(a * py - c * px) * inv
+    totals = []
+    for gv in grads[2:]:
+        tot = (dr.gather(T.Float, gv, i) + dtx * dr.gather(T.Float, gv, tx_lane)
+               + dty * dr.gather(T.Float, gv, ty_lane))
+        totals.append(dr.select(good & dr.isfinite(tot), tot, 0.0))
+    dr.eval(*vals, st, *totals)
+    return vals, st, totals

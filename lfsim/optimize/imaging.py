@@ -195,6 +195,7 @@ class ImagingMerit:
         blocks += constraints.edge_thickness_block(self.cols, x, self.tracer, values, self.pairs, t, w, K,
                                                    derivatives)
         r_all, J_all, details, self.layout = stack_blocks(blocks, K, derivatives)
+        self.rays = int(ok.size)
         # RMS spot radius per field (µm), polychromatic, about the primary chief ray.
         wq = self.w_pupil[None, None, :] * use
         ms = np.sum(wq * np.sum(rel ** 2, axis=-1), axis=(1, 2)) / np.maximum(np.sum(wq, axis=(1, 2)), 1e-300)

@@ -59,13 +59,16 @@ import numpy as np
 
 from ..design.design import Design
 from ..ini.model import IniModel
-from ..ini.subsystems import field_grid, sample, trace_rays_jacobian
+from ..ini.subsystems import Subsystems, field_grid, sample, trace_rays_jacobian
 from ..metrics import distortion, footprint, pupil, spot
 from ..metrics.spot import ARCMIN
 from ..optics.solids import prism_thickness, prisms
 from . import constraints
 
 LOST = 10.0  # residual of a lost ray (arcmin-equivalent)
+#: Ray copies (rays × (variables + 2)) per launch of the merit's Jacobian: sub-systems are
+#: traced and reduced to residual rows in chunks of this size, which bounds the memory.
+MERIT_RAY_COPIES = 400_000
 PRISM_POINTS = 9  # sample points per axis of a prism face's clear aperture (thickness)
 DEG = 180.0 / math.pi
 
@@ -105,12 +108,13 @@ class _Sample:
     S: int
     F: int
     R: int
+    S_all: int
+    dense: bool
     ok: np.ndarray
     pos: np.ndarray
     r: np.ndarray
     surf: np.ndarray
     cos_in: np.ndarray
-    grid_weights: np.ndarray
     nmla: int
     tirs: list
     apertures: list
@@ -125,19 +129,65 @@ class _Sample:
     figures: dict = field(default_factory=dict)
 
 
-def stack_blocks(blocks, K: int, derivatives: bool):
+class Rows:
+    """Residual rows accumulated block by block (and chunk by chunk).
+
+    ``add(name, residuals, jacobian)`` appends a block's rows; entries that are
+    not finite count as 0 (no NaN reaches a solver). With ``compress`` the
+    rows whose residual and Jacobian are both 0 are dropped as they come (an
+    inactive hinge, a ray that has no derivative and no error): they add
+    nothing to the merit, to ``JᵀJ`` or to ``Jᵀr``, so the damped least-squares
+    step is the same. ``result()`` gives (residuals (M,), Jacobian (M, K) or
+    None, the sum of squares per block, [(name, rows)]).
+    """
+
+    def __init__(self, K: int, derivatives: bool, compress: bool = True):
+        self.K, self.derivatives, self.compress = K, derivatives, compress
+        self.res, self.jac, self.sums, self.count = [], [], {}, {}
+
+    def add(self, name: str, r, j) -> None:
+        r = np.asarray(r, dtype=np.float64).ravel()
+        r = np.where(np.isfinite(r), r, 0.0)
+        if self.derivatives:
+            j = np.asarray(j, dtype=np.float64).reshape(-1, self.K)
+            j = np.where(np.isfinite(j), j, 0.0)
+        if self.compress:
+            keep = r != 0.0
+            if self.derivatives:
+                keep |= np.any(j != 0.0, axis=1)
+            if not keep.all():
+                r = r[keep]
+                j = j[keep] if self.derivatives else j
+        self.res.append(r)
+        if self.derivatives:
+            self.jac.append(j)
+        self.sums[name] = self.sums.get(name, 0.0) + float(r @ r)
+        self.count[name] = self.count.get(name, 0) + r.size
+
+    def result(self):
+        r = np.concatenate(self.res) if self.res else np.zeros(0)
+        J = (np.concatenate(self.jac) if self.jac else np.zeros((0, self.K))) if self.derivatives else None
+        return r, J, dict(self.sums), list(self.count.items())
+
+
+def stack_blocks(blocks, K: int, derivatives: bool, compress: bool = False):
     """Residual blocks ``(name, residuals, Jacobian rows or None)`` → (residuals (M,),
-    Jacobian (M, K) or None, the sum of squares per block, [(name, size)]); entries
-    that are not finite count as 0 (no NaN reaches a solver)."""
-    names, res, jacs = [], [], []
+    Jacobian (M, K) or None, the sum of squares per block, [(name, size)]) (see :class:`Rows`)."""
+    rows = Rows(K, derivatives, compress)
     for name, r, j in blocks:
-        names.append(name)
-        res.append(np.where(np.isfinite(r), r, 0.0).ravel())
-        if derivatives:
-            jacs.append(np.where(np.isfinite(j), j, 0.0).reshape(-1, K))
-    details = {n: float(np.sum(r ** 2)) for n, r in zip(names, res)}
-    return (np.concatenate(res), np.concatenate(jacs) if derivatives else None, details,
-            [(n, r.size) for n, r in zip(names, res)])
+        rows.add(name, r, j)
+    return rows.result()
+
+
+def _hinge(st, over, excess, jac):
+    """Rows of a hinge block: ``excess`` where ``over`` (else 0) and ``jac(index)``, the
+    Jacobian rows of the entries at ``index``. Dense: every entry (``index`` = ``...``);
+    otherwise only the entries over their limit, gathered (the others are 0 rows)."""
+    if st.dense:
+        r = np.where(over, excess, 0.0)
+        return r, (np.where(over[..., None], jac(...), 0.0) if st.derivatives else None)
+    ix = np.nonzero(over)
+    return excess[ix], (jac(ix) if st.derivatives else None)
 
 
 def columns(design: Design, spec) -> list[Column]:
@@ -297,7 +347,7 @@ class IniMerit:
         wx, wy = axis(model.arr.m, subs.m), axis(model.arr.n, subs.n)
         return np.array([wx[int(a)] * wy[int(b)] for a, b in zip(subs.m, subs.n)])
 
-    def _rays(self, model: IniModel, subs, derivatives: bool):
+    def _rays(self, model: IniModel, subs, derivatives: bool, ds=None):
         S, F, R = len(subs), subs.display.shape[1], len(self.rho)
         shape = (S, F, R)
         s = np.broadcast_to(subs.display[:, :, None, :], shape + (2,)).reshape(-1, 2)
@@ -307,9 +357,12 @@ class IniMerit:
         k = np.broadcast_to(subs.k[:, None, None], shape).ravel()
         record = self._record(model)
         cols = [(c.name, c.state) for c in self.cols]
-        J = trace_rays_jacobian(model, s, m, n, rho, k, cols, record=record, derivatives=derivatives)
+        conv = np.array([1e-3 if c.state is not None else 1.0 for c in self.cols])
+        if ds is not None:  # the display-point derivatives are per variable, the tracer's power per 1/mm
+            ds = ds / conv
+        J = trace_rays_jacobian(model, s, m, n, rho, k, cols, record=record, derivatives=derivatives,
+                                ds=ds, max_ray_copies=None if ds is None else MERIT_RAY_COPIES)
         if derivatives:  # tunable-lens columns: the tracer's power is in 1/mm, the variable in diopters
-            conv = np.array([1e-3 if c.state is not None else 1.0 for c in self.cols])
             J.d_pos, J.d_dir, J.d_surf, J.d_cos_in = (J.d_pos * conv, J.d_dir * conv, J.d_surf * conv,
                                                       J.d_cos_in * conv)
         return shape, J
@@ -336,66 +389,102 @@ class IniMerit:
         return [i for i, s in enumerate(model.system.surfaces[:last + 1]) if s.interaction == "tir"]
 
     # ------------------------------------------------------------ residuals
-    def evaluate(self, x, derivatives: bool = True):
-        """(residuals (M,), Jacobian (M, K) or None, details dict)."""
+    def evaluate(self, x, derivatives: bool = True, dense: bool = False):
+        """(residuals (M,), Jacobian (M, K) or None, details dict).
+
+        The sub-systems are traced and reduced to residual rows in chunks of at
+        most :data:`MERIT_RAY_COPIES` ray copies, and rows that are 0 with a 0
+        Jacobian (inactive hinges) are dropped, so memory is bounded by the
+        chunk and by the active rows (:class:`Rows`). ``dense``: one chunk, every
+        row, and the re-aiming and display-layout chain rule in numpy (the
+        reference the lean evaluation is tested against; same merit, ``JᵀJ``
+        and ``Jᵀr``).
+        """
         self.evaluations += 1
-        st = self._sample(x, derivatives)
-        blocks = (self._lost, self._spot, self._gd, self._pa, self._distortion, self._crosstalk, self._tir,
-                  self._apertures, self._efl, self._thickness, self._edge_thickness, self._prism_thickness_block)
-        r_all, J_all, details, self.layout = stack_blocks((b for block in blocks for b in block(st)), st.K,
-                                                          derivatives)
-        fig = st.figures
+        x = np.asarray(x, dtype=np.float64)
+        model = self.model_at(x)
+        K = len(self.cols)
+        subs, ref = self._references(model)
+        dref = self._reference_derivatives(model, x) if derivatives and K else {}
+        S, F, R = len(subs), subs.display.shape[1], len(self.rho)
+        per = S if dense else max(1, MERIT_RAY_COPIES // ((K + 2 if derivatives else 1) * F * R))
+        rows = Rows(K, derivatives, compress=not dense)
+        parts = []
+        for a in range(0, S, per):
+            st = self._sample(model, x, subs, ref, dref, slice(a, min(S, a + per)), derivatives, dense)
+            for block in (self._lost, self._spot, self._gd, self._pa, self._distortion, self._crosstalk,
+                          self._tir, self._apertures):
+                for name, r, j in block(st):
+                    rows.add(name, r, j)
+            parts.append(st.figures)
+        fig = {key: np.concatenate([p_[key] for p_ in parts]) for key in parts[0]}
+        st.figures = fig
+        gw = self._grid_weights(model, subs)
+        for name, r, j in self._gd_mean(st, gw):
+            rows.add(name, r, j)
+        for block in (self._efl, self._thickness, self._edge_thickness, self._prism_thickness_block):
+            for name, r, j in block(st):
+                rows.add(name, r, j)
+        r_all, J_all, details, self.layout = rows.result()
+        self.rays = S * F * R
         okc, pa_ok, spot_ok = fig["gd_ok"], fig["pa_ok"], fig["spot_ok"]
-        gd, pa_f, rms, gw = fig["gd"], fig["pa"], fig["rms"], st.grid_weights
+        gd, pa_f, rms = fig["gd"], fig["pa"], fig["rms"]
         #: The last evaluation's figures per sampled sub-system (S) and field (F), as
         #: `lfsim analyze` defines them (metrics.distortion, .footprint, .spot).
-        self.figures = {"subs": st.subs, "gd_deg": np.where(okc, gd, np.nan),
+        self.figures = {"subs": subs, "gd_deg": np.where(okc, gd, np.nan),
                         "pa": np.where(pa_ok, pa_f, np.nan),
                         "rms_spot_arcmin": np.where(spot_ok, rms * ARCMIN, np.nan)}
         details.update(gd_max_deg=float(np.max(gd[okc])) if okc.any() else None,
                        pa_max=float(np.max(pa_f[pa_ok])) if pa_ok.any() else None,
                        rms_spot_mean_arcmin=float(np.mean(rms[spot_ok]) * ARCMIN) if spot_ok.any() else None,
                        gd_mean_deg=float(gw[okc] @ gd[okc] / gw[okc].sum()) if okc.any() else None,
-                       rays=int(st.ok.size), rays_lost=int((~st.ok).sum()),
-                       efl_mm=[float(v) for v in st.ref["efl"]])
+                       rays=self.rays, rays_lost=int(fig["lost"].sum()),
+                       efl_mm=[float(v) for v in ref["efl"]])
         return r_all, J_all, details
 
-    def _sample(self, x, derivatives: bool) -> _Sample:
-        """Trace the sampled rays at ``x``: their retinal tangents, VW positions and
-        recorded hits, with derivatives (the display layout's change included)."""
-        model = self.model_at(x)
+    def _sample(self, model, x, subs, ref, dref, sl: slice, derivatives: bool, dense: bool) -> _Sample:
+        """Trace the sampled rays of sub-systems ``sl`` at ``x``: their retinal tangents,
+        VW positions and recorded hits, with total derivatives (the display layout's
+        change included)."""
         K = len(self.cols)
-        subs, ref = self._references(model)
-        (S, F, R), J = self._rays(model, subs, derivatives)
-        dref = self._reference_derivatives(model, x) if derivatives and K else {}
+        part = Subsystems(subs.m[sl], subs.n[sl], subs.k[sl], subs.fields, subs.center[sl], subs.display[sl])
+        S, F, R = len(part), part.display.shape[1], len(self.rho)
+        ds = None
+        if derivatives:  # rays move with the display layout too: d/dx += ∂/∂s · ds/dx
+            dd = dref["display"][sl] if dref else np.zeros((S, F, 2, K))
+            ds = np.broadcast_to(dd[:, :, None], (S, F, R, 2, K)).reshape(-1, 2, K)
+        (S, F, R), J = self._rays(model, part, derivatives, None if dense else ds)
         ok = (J.status == 0).reshape(S, F, R)
-        D = np.array(model.depths)[subs.k][:, None, None]
+        D = np.array(model.depths)[part.k][:, None, None]
         pos = J.pos.reshape(S, F, R, 2)
         dirs = J.dir.reshape(S, F, R, 3)
         slope = dirs[..., :2] / dirs[..., 2:3]
         r = slope - pos * (D[..., None] / 1000.0)
         nrec = J.surf.shape[1]
-        st = _Sample(model=model, x=np.asarray(x, dtype=np.float64), derivatives=derivatives, K=K, subs=subs,
-                     ref=ref, S=S, F=F, R=R, ok=ok, pos=pos, r=r, surf=J.surf.reshape(S, F, R, nrec, 2),
-                     cos_in=J.cos_in.reshape(S, F, R, nrec), grid_weights=self._grid_weights(model, subs),
-                     nmla=len(self._crosstalk_surfaces(model)), tirs=self._tir_surfaces(model),
-                     apertures=self._aperture_surfaces(model))
+        cut = {key: v[sl] for key, v in ref.items() if key != "efl"}
+        cut["efl"] = ref["efl"]
+        st = _Sample(model=model, x=x, derivatives=derivatives, K=K, subs=part, ref=cut, S=S, F=F, R=R,
+                     S_all=len(subs), dense=dense, ok=ok, pos=pos, r=r, surf=J.surf.reshape(S, F, R, nrec, 2),
+                     cos_in=J.cos_in.reshape(S, F, R, nrec), nmla=len(self._crosstalk_surfaces(model)),
+                     tirs=self._tir_surfaces(model), apertures=self._aperture_surfaces(model))
+        st.figures["lost"] = (~ok).reshape(S, -1).sum(axis=1)
         if derivatives:
-            # rays move with the display layout too: d/dx += ∂/∂s · ds/dx
-            ds = dref["display"][:, :, None] if dref else np.zeros((S, F, 1, 2, K))  # (S, F, 1, 2, K)
-            st.dpos = J.d_pos.reshape(S, F, R, 2, K) + np.einsum("sfrab,sfrbk->sfrak",
-                                                                 J.ds_pos.reshape(S, F, R, 2, 2), ds)
-            ddir = J.d_dir.reshape(S, F, R, 3, K) + np.einsum("sfrab,sfrbk->sfrak",
-                                                              J.ds_dir.reshape(S, F, R, 3, 2), ds)
-            st.dsurf = J.d_surf.reshape(S, F, R, nrec, 2, K) + np.einsum(
-                "sfrjab,sfrbk->sfrjak", J.ds_surf.reshape(S, F, R, nrec, 2, 2), ds)
-            st.dcos = J.d_cos_in.reshape(S, F, R, nrec, K) + np.einsum(
-                "sfrjb,sfrbk->sfrjk", J.ds_cos_in.reshape(S, F, R, nrec, 2), ds)
+            dpos = J.d_pos.reshape(S, F, R, 2, K)
+            ddir = J.d_dir.reshape(S, F, R, 3, K)
+            dsurf = J.d_surf.reshape(S, F, R, nrec, 2, K)
+            dcos = J.d_cos_in.reshape(S, F, R, nrec, K)
+            if dense:  # the chain rule in numpy, from the display-point derivatives
+                dsx = ds.reshape(S, F, R, 2, K)
+                dpos = dpos + np.einsum("sfrab,sfrbk->sfrak", J.ds_pos.reshape(S, F, R, 2, 2), dsx)
+                ddir = ddir + np.einsum("sfrab,sfrbk->sfrak", J.ds_dir.reshape(S, F, R, 3, 2), dsx)
+                dsurf = dsurf + np.einsum("sfrjab,sfrbk->sfrjak", J.ds_surf.reshape(S, F, R, nrec, 2, 2), dsx)
+                dcos = dcos + np.einsum("sfrjb,sfrbk->sfrjk", J.ds_cos_in.reshape(S, F, R, nrec, 2), dsx)
+            st.dpos, st.dsurf, st.dcos = dpos, dsurf, dcos
             dslope = (ddir[..., :2, :] - slope[..., None] * ddir[..., 2:3, :]) / dirs[..., 2:3, None]
             st.dr = dslope - st.dpos * (D[..., None, None] / 1000.0)
-            st.dpar_c = dref.get("par_c", np.zeros((S, F, 2, K)))
-            st.dpar_m = dref.get("par_m", np.zeros((S, F, 4, 2, K)))
-            st.dd_v = dref.get("d_v", np.zeros((S, K)))
+            st.dpar_c = dref["par_c"][sl] if dref else np.zeros((S, F, 2, K))
+            st.dpar_m = dref["par_m"][sl] if dref else np.zeros((S, F, 4, 2, K))
+            st.dd_v = dref["d_v"][sl] if dref else np.zeros((S, K))
             st.defl = dref.get("efl")
         else:  # no columns: the derivative variants of lfsim.metrics run with K = 0
             st.dr, st.dpos = np.zeros(r.shape + (0,)), np.zeros(pos.shape + (0,))
@@ -417,44 +506,54 @@ class IniMerit:
         okg = st.ok[:, :, g]
         rms, _, off, doff, wn = spot.rms_spot_jvp(st.r[:, :, g], st.dr[:, :, g], self.w_gl, okg)
         st.figures.update(rms=rms, spot_ok=okg.any(-1))
-        scale = w.spot * ARCMIN / math.sqrt(st.S * st.F)
+        scale = w.spot * ARCMIN / math.sqrt(st.S_all * st.F)
         yield ("spot", np.sqrt(wn)[..., None] * off * scale,
                np.sqrt(wn)[..., None, None] * doff * scale if st.derivatives else None)
         if t.spot_axis_max_arcmin is None:
             return
         rms_a = np.sqrt(np.sum(wn[..., None] * off ** 2, axis=2)) * ARCMIN  # (S, F, 2)
         over = (rms_a > t.spot_axis_max_arcmin) & okg.any(-1)[..., None]
-        jac = None
-        if st.derivatives:
-            drms = (np.sum(wn[..., None, None] * off[..., None] * doff, axis=2) * ARCMIN ** 2
-                    / np.maximum(rms_a, 1e-300)[..., None])
-            jac = np.where(over[..., None], drms, 0.0) * 10.0 * w.spot
-        yield "spot_axis_max", np.where(over, rms_a - t.spot_axis_max_arcmin, 0.0) * 10.0 * w.spot, jac
+
+        def jac(ix):  # rows (S, F, axis) of d rms_a
+            om = np.moveaxis(off, 2, -1)  # (S, F, 2, Q)
+            o_, w_ = om[ix], np.broadcast_to(wn[:, :, None, :], om.shape)[ix]
+            do_ = np.moveaxis(doff, 2, -2)[ix]  # (..., Q, K)
+            return (np.sum((w_ * o_)[..., None] * do_, axis=-2) * ARCMIN ** 2
+                    / np.maximum(rms_a[ix], 1e-300)[..., None]) * 10.0 * w.spot
+
+        yield ("spot_axis_max", *_hinge(st, over, (rms_a - t.spot_axis_max_arcmin) * 10.0 * w.spot, jac))
 
     def _gd(self, st: _Sample):
         """GD (Eq. 11, metrics.distortion) on the centre field's chief ray against the
         paraxial chief ray (the residual vector has |v| = GD in degrees); the mean over
         the whole display and the per-sub-system maximum as hinges."""
-        t, w, S = self.spec.targets, self.spec.weights, st.S
+        t, w, S = self.spec.targets, self.spec.weights, st.S_all
         e = st.r[:, 0, 0] - st.ref["par_c"][:, 0]  # (S, 2)
         okc = st.ok[:, 0, 0]
         gd, dgd, gv, dgv = distortion.gd_deg_jvp(e, st.dr[:, 0, 0] - st.dpar_c[:, 0])
         st.figures.update(gd=gd, gd_ok=okc)
+        if st.derivatives:
+            st.figures["dgd"] = dgd
         yield ("gd", np.where(okc[:, None], gv, 0.0) * w.gd / math.sqrt(S),
                np.where(okc[:, None, None], dgv, 0.0) * w.gd / math.sqrt(S) if st.derivatives else None)
-        # The mean over the whole display: each sampled lenslet stands for the
-        # lenslets nearest to it (all weights equal at stride 1).
-        if t.gd_mean_deg is not None and okc.any():
-            wm = np.where(okc, st.grid_weights, 0.0)
-            wm = wm / wm.sum()
-            mean = float(wm @ gd)
-            hit = mean > t.gd_mean_deg
-            jac = (wm @ dgd * 10.0 * w.gd * hit)[None] if st.derivatives else None
-            yield "gd_mean", np.array([(mean - t.gd_mean_deg) * 10.0 * w.gd if hit else 0.0]), jac
         if t.gd_max_deg is not None:
             over = okc & (gd > t.gd_max_deg)
-            yield ("gd_max", np.where(over, gd - t.gd_max_deg, 0.0) * 10.0 * w.gd,
-                   np.where(over[:, None], dgd, 0.0) * 10.0 * w.gd if st.derivatives else None)
+            yield ("gd_max", *_hinge(st, over, (gd - t.gd_max_deg) * 10.0 * w.gd, lambda ix: dgd[ix] * 10.0 * w.gd))
+
+    def _gd_mean(self, st: _Sample, grid_weights):
+        """The mean GD over the whole display beyond ``gd_mean_deg``: each sampled
+        lenslet stands for the lenslets nearest to it (all weights equal at stride 1);
+        ``st.figures`` holds every chunk's GD."""
+        t, w, fig = self.spec.targets, self.spec.weights, st.figures
+        okc, gd = fig["gd_ok"], fig["gd"]
+        if t.gd_mean_deg is None or not okc.any():
+            return
+        wm = np.where(okc, grid_weights, 0.0)
+        wm = wm / wm.sum()
+        mean = float(wm @ gd)
+        hit = mean > t.gd_mean_deg
+        jac = (wm @ fig["dgd"] * 10.0 * w.gd * hit)[None] if st.derivatives else None
+        yield "gd_mean", np.array([(mean - t.gd_mean_deg) * 10.0 * w.gd if hit else 0.0]), jac
 
     def _pa(self, st: _Sample):
         """PA (Eq. 12, metrics.footprint): the marginal rays' footprint errors, and each
@@ -466,7 +565,7 @@ class IniMerit:
         dev = (st.pos[:, :, m_] - st.ref["par_m"]) / (math.sqrt(2.0) * d_v)  # (S, F, 4, 2)
         ddev = ((st.dpos[:, :, m_] - st.dpar_m) / (math.sqrt(2.0) * d_v[..., None])
                 - dev[..., None] * (st.dd_v[:, None, None, None, :] / d_v[..., None]))
-        n_m = math.sqrt(st.S * st.F * 4)
+        n_m = math.sqrt(st.S_all * st.F * 4)
         yield ("pa", np.where(okm[..., None], dev, 0.0) * w.pa / n_m,
                np.where(okm[..., None, None], ddev, 0.0) * w.pa / n_m if st.derivatives else None)
         pa_f, dpa_f = footprint.pa_jvp(dev, ddev)
@@ -474,8 +573,7 @@ class IniMerit:
         st.figures.update(pa=pa_f, pa_ok=pa_ok)
         if t.pa_max is not None:
             over = pa_ok & (pa_f > t.pa_max)
-            yield ("pa_max", np.where(over, pa_f - t.pa_max, 0.0) * 10.0 * w.pa,
-                   np.where(over[..., None], dpa_f, 0.0) * 10.0 * w.pa if st.derivatives else None)
+            yield ("pa_max", *_hinge(st, over, (pa_f - t.pa_max) * 10.0 * w.pa, lambda ix: dpa_f[ix] * 10.0 * w.pa))
 
     def _distortion(self, st: _Sample):
         """Local distortion of each EI beyond its maximum (metrics.distortion: chief rays
@@ -486,8 +584,8 @@ class IniMerit:
         ld, dld = distortion.local_distortion_jvp(st.r[:, :, 0], st.dr[:, :, 0], st.ref["par_c"], st.dpar_c)
         over = st.ok[:, :, 0] & st.ok[:, :1, 0] & (ld > t.local_distortion_max)
         over[:, 0] = False
-        jac = np.where(over[..., None], dld, 0.0) * 100.0 * w.distortion if st.derivatives else None
-        yield "distortion", np.where(over, ld - t.local_distortion_max, 0.0) * 100.0 * w.distortion, jac
+        yield ("distortion", *_hinge(st, over, (ld - t.local_distortion_max) * 100.0 * w.distortion,
+                                     lambda ix: dld[ix] * 100.0 * w.distortion))
 
     def _crosstalk(self, st: _Sample):
         """Pupil and marginal rays beyond (½ − margin) of the cell on every MLA surface, µm."""
@@ -496,10 +594,9 @@ class IniMerit:
         hs = st.surf[:, :, :, :n]
         ex = np.abs(hs) - lim
         over = (ex > 0) & st.ok[..., None, None]
-        jac = None
-        if st.derivatives:
-            jac = np.where(over[..., None], np.sign(hs)[..., None] * st.dsurf[:, :, :, :n], 0.0) * 1000.0 * w.crosstalk
-        yield "crosstalk", np.where(over, ex, 0.0) * 1000.0 * w.crosstalk, jac
+        scale = 1000.0 * w.crosstalk
+        yield ("crosstalk", *_hinge(st, over, ex * scale,
+                                    lambda ix: np.sign(hs[ix])[..., None] * st.dsurf[:, :, :, :n][ix] * scale))
 
     def _tir(self, st: _Sample):
         """Incidence below the critical angle + margin on surfaces that rely on TIR, °."""
@@ -515,11 +612,12 @@ class IniMerit:
             th = np.degrees(np.arccos(cosv))
             need = theta_c + t.tir_margin_deg
             over = st.ok & (th < need)
-            jac = None
-            if st.derivatives:
-                sin = np.maximum(np.sqrt(1.0 - cosv ** 2), 1e-12)
-                jac = np.where(over[..., None], st.dcos[:, :, :, st.nmla + j_] / sin[..., None] * DEG, 0.0) * w.tir
-            yield f"tir_{model.system.surfaces[i].name}", np.where(over, need - th, 0.0) * w.tir, jac
+
+            def jac(ix, j_=j_, cosv=cosv):
+                sin = np.maximum(np.sqrt(1.0 - cosv[ix] ** 2), 1e-12)
+                return st.dcos[:, :, :, st.nmla + j_][ix] / sin[..., None] * DEG * w.tir
+
+            yield (f"tir_{model.system.surfaces[i].name}", *_hinge(st, over, (need - th) * w.tir, jac))
 
     def _apertures(self, st: _Sample):
         """Rays of the pupil beyond a clear aperture (the analysis vignettes them
@@ -536,16 +634,17 @@ class IniMerit:
             if ap.kind == "circular":
                 rad = np.hypot(h[..., 0], h[..., 1])
                 over = st.ok & (rad > ap.radius - margin)
-                jac = None
-                if st.derivatives:
-                    u = np.where(over[..., None], h / np.maximum(rad, 1e-300)[..., None], 0.0)
-                    jac = np.einsum("sfra,sfrak->sfrk", u, dh) * scale
-                yield name, np.where(over, rad - (ap.radius - margin), 0.0) * scale, jac
+
+                def jac(ix, h=h, dh=dh, rad=rad):
+                    u = h[ix] / np.maximum(rad[ix], 1e-300)[..., None]
+                    return np.einsum("...a,...ak->...k", u, dh[ix]) * scale
+
+                yield (name, *_hinge(st, over, (rad - (ap.radius - margin)) * scale, jac))
             else:
                 ex = np.abs(h) - (np.array(ap.half_width) - margin)
                 over = (ex > 0) & st.ok[..., None]
-                jac = np.where(over[..., None], np.sign(h)[..., None] * dh, 0.0) * scale if st.derivatives else None
-                yield name, np.where(over, ex, 0.0) * scale, jac
+                yield (name, *_hinge(st, over, ex * scale,
+                                     lambda ix, h=h, dh=dh: np.sign(h[ix])[..., None] * dh[ix] * scale))
 
     def _efl(self, st: _Sample):
         """Relay–eyepiece focal length per CDP state, % from its target (derivatives:

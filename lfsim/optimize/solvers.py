@@ -50,7 +50,12 @@ _COST_RTOL = 1e-9  # agreement required between a checkpoint's cost and the prob
 
 
 class Problem(Protocol):
-    """What the solvers need: weighted residuals and their Jacobian."""
+    """What the solvers need: weighted residuals and their Jacobian.
+
+    The number of rows M may change from point to point: a problem may leave
+    out rows that are 0 with a 0 Jacobian row (inactive hinge constraints),
+    since they add nothing to the merit or to the linear model of a step.
+    """
 
     def residuals(self, x: np.ndarray) -> np.ndarray:
         """Weighted residuals (M,) at ``x`` (K,); the merit is ``sum(r**2)``."""
@@ -153,14 +158,14 @@ def _digest(*arrays) -> str:
     return h.hexdigest()[:16]
 
 
-def _evaluate(problem, x, M=None):
+def _evaluate(problem, x):
     """``(r, J, finite)`` from ``problem.jacobian`` with shapes checked."""
     r, J = problem.jacobian(x.copy())
     r = np.asarray(r, dtype=np.float64).reshape(-1)
     J = np.asarray(J, dtype=np.float64)
-    if J.shape != (r.size, x.size) or (M is not None and r.size != M):
-        raise ValueError(f"jacobian returned r {r.shape} and J {J.shape}; expected ({M or r.size},) "
-                         f"and ({M or r.size}, {x.size})")
+    if J.shape != (r.size, x.size):
+        raise ValueError(f"jacobian returned r {r.shape} and J {J.shape}; expected ({r.size},) "
+                         f"and ({r.size}, {x.size})")
     return r, J, bool(np.isfinite(r).all() and np.isfinite(J).all())
 
 
@@ -236,9 +241,9 @@ def _start(problem, solver, x0, lower, upper, scale, settings, checkpoint, resum
         meta, arrays = _load(checkpoint, fp)
         r, J, finite = _evaluate(problem, arrays["x"])
         cost = float(r @ r) if finite else np.nan
-        if r.size != meta["M"] or not abs(cost - meta["cost"]) <= _COST_RTOL * abs(meta["cost"]):
-            raise ValueError(f"checkpoint {checkpoint}: the problem gives M={r.size}, cost={cost:.17g} at the "
-                             f"checkpointed x, not M={meta['M']}, cost={meta['cost']:.17g}; refusing to resume")
+        if not abs(cost - meta["cost"]) <= _COST_RTOL * abs(meta["cost"]):
+            raise ValueError(f"checkpoint {checkpoint}: the problem gives cost={cost:.17g} at the "
+                             f"checkpointed x, not cost={meta['cost']:.17g}; refusing to resume")
         meta["evaluations"] += 1
         return meta, arrays, r, J
     x = np.clip(x0, lower, upper)
@@ -297,7 +302,7 @@ def levenberg_marquardt(problem: Problem, x0, bounds: Bounds | None = None, max_
     settings = {"lambda0": float(lambda0), "ftol": float(ftol), "xtol": float(xtol), "gtol": float(gtol)}
     meta, arrays, r, J = _start(problem, "levenberg_marquardt", x0, lower, upper, scale, settings,
                                 checkpoint, resume)
-    x, M = arrays["x"], meta["M"]
+    x = arrays["x"]
     d = arrays.get("d", np.zeros(x.size))
     lam, nu = meta.get("lam", float(lambda0)), meta.get("nu", 2.0)
     cost, status = meta["cost"], meta["status"]
@@ -332,13 +337,11 @@ def levenberg_marquardt(problem: Problem, x0, bounds: Bounds | None = None, max_
                 if pred > 0:
                     r_t = np.asarray(problem.residuals(x_t.copy()), dtype=np.float64).reshape(-1)
                     meta["evaluations"] += 1
-                    if r_t.size != M:
-                        raise ValueError(f"residuals returned {r_t.size} values, expected {M}")
                     if np.isfinite(r_t).all():
                         cost_t = float(r_t @ r_t)
                         rho = float((cost - cost_t) / pred)
                     if rho > 0:
-                        step = _evaluate(problem, x_t, M)
+                        step = _evaluate(problem, x_t)
                         meta["evaluations"] += 1
                 if step is not None and step[2]:
                     break
@@ -391,7 +394,7 @@ def adam(problem: Problem, x0, bounds: Bounds | None = None, iterations: int = 2
     b1, b2 = float(betas[0]), float(betas[1])
     settings = {"lr": float(lr), "betas": [b1, b2], "eps": float(eps)}
     meta, arrays, r, J = _start(problem, "adam", x0, lower, upper, scale, settings, checkpoint, resume)
-    x, M = arrays["x"], meta["M"]
+    x = arrays["x"]
     m, v = arrays.get("m", np.zeros(x.size)), arrays.get("v", np.zeros(x.size))
     best_x = arrays.get("best_x", x)
     meta.setdefault("t", 0)
@@ -413,7 +416,7 @@ def adam(problem: Problem, x0, bounds: Bounds | None = None, iterations: int = 2
             step_lr = lr * meta["lr_factor"]
             z_step = -step_lr * (m_t / (1.0 - b1**t)) / (np.sqrt(v_t / (1.0 - b2**t)) + eps)
             x_t = np.clip(x + scale * z_step, lower, upper)
-            r_t, J_t, finite = _evaluate(problem, x_t, M)
+            r_t, J_t, finite = _evaluate(problem, x_t)
             meta["evaluations"] += 1
             if not finite:
                 meta["lr_factor"] *= 0.5

@@ -107,7 +107,7 @@ def optimize(design: Design, out_dir, stages=None, iterations: int | None = None
         x0 = np.clip(merit.x0, lo, hi)
         r0, _, det0 = merit.evaluate(x0, derivatives=False)
         ckpt = out / "checkpoints" / f"{stage}.npz"
-        log(f"stage {stage}: {len(cols)} variables, {merit.layout[0][1]} rays, merit {float(r0 @ r0):.6g}")
+        log(f"stage {stage}: {len(cols)} variables, {merit.rays} rays, merit {float(r0 @ r0):.6g}")
         scale = np.maximum(np.abs(x0), 1e-3)
         n_it = iterations
         if stage == "full" and spec.full_iterations is not None and override is None:
@@ -135,7 +135,7 @@ def optimize(design: Design, out_dir, stages=None, iterations: int | None = None
         current = merit.design_at(res.x)
         secs = time.perf_counter() - t0
         rec = {"stage": stage, "variables": [c.label for c in cols], "stride": list(merit.stride),
-               "rays": merit.layout[0][1], "status": res.status, "iterations": res.iterations,
+               "rays": merit.rays, "status": res.status, "iterations": res.iterations,
                "evaluations": res.evaluations, "merit_start": float(r0 @ r0), "merit_end": float(r1 @ r1),
                "blocks_start": _summary(det0), "blocks_end": _summary(det1),
                "x_start": [float(v) for v in x0], "x_end": [float(v) for v in res.x],
