@@ -91,6 +91,11 @@ def _emit(msg: str) -> None:
     touch()
 
 
+def line(msg: str) -> None:
+    """Print one progress line on standard error (above a bar on a terminal)."""
+    _emit(msg)
+
+
 @contextmanager
 def heartbeat(what: str, after: float | None = None, interval: float | None = None, enabled: bool = True):
     """Around a command: a line whenever ``after`` s (then ``interval`` s) pass with no progress output.

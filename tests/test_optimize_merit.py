@@ -241,3 +241,49 @@ def test_merit_figures_equal_the_analysis(scenes, tmp_path, scene):
         keep = np.isfinite(a) & np.isfinite(b)
         assert keep.mean() > 0.9, name
         np.testing.assert_allclose(a[keep], b[keep], rtol=0, atol=1e-9, err_msg=name)
+
+
+def test_schedule_runs_in_one_call_honours_each_stage_and_resumes_bit_identically(scenes, tmp_path):
+    """A [[optimize.stages]] schedule: each stage moves its own variables within its
+    own bounds, with its own weights and sampling; an uninterrupted run and one killed
+    in the middle of its second stage and resumed end on the same bits."""
+    from lfsim.optimize.workflow import optimize
+
+    b_lo, b_hi = -2.3, -2.25
+    stages = [{"name": "a", "variables": [{"name": "S3.x2y0", "min": -0.75, "max": -0.70}, "tunable"],
+               "iterations": 2},
+              {"name": "b", "variables": ["S3.x2y0", {"name": "S4.x2y1", "min": b_lo, "max": b_hi}, "tunable"],
+               "iterations": 3, "weights": {"gd": 8.0}, "stride": [8, 8]}]
+    d = _design(scenes, tmp_path, ["S3.x2y0", "tunable"], stages=stages)
+    assert d.optimize.schedule is not None
+    s4 = next(s for s in d.raw["surfaces"] if s["name"] == "S4")
+    assert not b_lo <= s4["xy"]["x2y1"] <= b_hi  # stage b has to move it into its box
+    lines = []
+    doc = optimize(d, tmp_path / "full", log=lines.append, analyze_stride=None)
+    assert [r["stage"] for r in doc["stages"]] == ["a", "b"]
+    a, b = doc["stages"]
+    assert a["variables"][0] == "S3.x2y0" and len(a["variables"]) == 4 and len(b["variables"]) == 5
+    assert -0.75 <= a["x_end"][0] <= -0.70 and -0.75 <= b["x_start"][0] <= -0.70
+    assert b_lo <= b["x_end"][1] <= b_hi and b["stride"] == [8, 8] and a["stride"] == [16, 8]
+    assert b["x_start"][0] == a["x_end"][0]  # stage b starts where stage a ended
+    assert b["merit_end"] < b["merit_start"]
+    # one line per iteration with the merit, the block shares, the damping, the step and an ETA
+    it_lines = [ln for ln in lines if ln.lstrip().startswith(("a ", "b "))]
+    assert len(it_lines) == a["iterations"] + b["iterations"]
+    assert all("merit" in ln and "%" in ln and "lambda" in ln and "step" in ln and "ETA" in ln for ln in it_lines)
+    header = (tmp_path / "full" / doc["optimized_design"]).read_text().splitlines()[:3]
+    assert any("lfsim optimize" in ln and "--out" in ln for ln in header)
+
+    class Killed(Exception):
+        pass
+
+    def kill_in_b(msg):
+        if msg.lstrip().startswith("b 2/"):
+            raise Killed
+
+    with pytest.raises(Killed):
+        optimize(d, tmp_path / "part", log=kill_in_b, analyze_stride=None)
+    doc2 = optimize(d, tmp_path / "part", log=lambda m: None, analyze_stride=None, resume=True)
+    for r1, r2 in zip(doc["stages"], doc2["stages"], strict=True):
+        assert r1["x_end"] == r2["x_end"]
+        assert [h["cost"] for h in r1["history"]] == [h["cost"] for h in r2["history"]]

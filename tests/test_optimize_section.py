@@ -162,3 +162,89 @@ def test_section_must_be_a_table(tmp_path):
     with pytest.raises(DesignError) as e:
         lfsim.load(p)
     assert e.value.key == "optimize"
+
+
+SCHEDULE = """
+[optimize]
+variables = [{ name = "S1.curvature", min = -0.05, max = 0.05 }, "S3.x2y0", "tunable"]
+iterations = 7
+[optimize.sampling]
+stride = [4, 2]
+pupil = 3
+[optimize.targets]
+gd_max_deg = 0.6
+pa_max = 0.3
+[optimize.weights]
+gd = 4.0
+[[optimize.stages]]
+name = "coarse"
+variables = ["S1.curvature", { name = "S3.x0y2", min = -1.0 }]
+[[optimize.stages]]
+name = "fine-1"
+iterations = 3
+stride = [1, 1]
+solver = "adam"
+[optimize.stages.targets]
+gd_mean_deg = 0.2
+[optimize.stages.weights]
+gd = 32.0
+"""
+
+
+def test_schedule_parses_with_the_section_as_default(make_design, freeform_text):
+    """Each [[optimize.stages]] entry takes the section's settings where it says nothing;
+    its targets and weights replace only the keys it names; a bare variable name keeps
+    the section's bounds."""
+    o = make_design(freeform_text + SCHEDULE).optimize
+    assert o.stages == ("coarse", "fine-1") and len(o.schedule) == 2
+    a, b = o.schedule
+    assert a.variables == (Variable("S1.curvature", -0.05, 0.05), Variable("S3.x0y2", -1.0, math.inf))
+    assert (a.iterations, a.stride, a.pupil, a.fields, a.solver) == (7, (4, 2), 3, 3, "lm")
+    assert a.targets == o.targets and a.weights == o.weights
+    assert b.variables == o.variables and b.variables[2].lower == -5.0  # "tunable": the lens's range
+    assert (b.iterations, b.stride, b.solver) == (3, (1, 1), "adam")
+    assert (b.targets.gd_mean_deg, b.targets.gd_max_deg, b.weights.gd, b.weights.pa) == (0.2, 0.6, 32.0, 1.0)
+    sub = o.for_stage(b)
+    assert sub.variables == b.variables and sub.targets == b.targets and sub.schedule is None
+
+
+STAGE_HEAD = 'variables = ["S1.curvature"]\n'
+BAD_SCHEDULE = [
+    ('[[optimize.stages]]\niterations = 3', "optimize.stages[0].name", "required"),
+    ('[[optimize.stages]]\nname = "a b"', "optimize.stages[0].name", "letters, digits"),
+    ('[[optimize.stages]]\nname = "a"\n[[optimize.stages]]\nname = "a"', "optimize.stages[1].name", "duplicate"),
+    ('[[optimize.stages]]\nname = "a"\nsteps = 3', "optimize.stages[0].steps", "unknown key"),
+    ('[[optimize.stages]]\nname = "a"\niterations = 0', "optimize.stages[0].iterations", ">= 1"),
+    ('[[optimize.stages]]\nname = "a"\nstride = [1]', "optimize.stages[0].stride", "two integers"),
+    ('[[optimize.stages]]\nname = "a"\nfields = 2', "optimize.stages[0].fields", "odd"),
+    ('[[optimize.stages]]\nname = "a"\nsolver = "sgd"', "optimize.stages[0].solver", "lm, adam"),
+    ('[[optimize.stages]]\nname = "a"\nvariables = ["S1.curvatur"]', "optimize.stages[0].variables[0]",
+     "S1.curvature"),
+    ('[[optimize.stages]]\nname = "a"\nvariables = []', "optimize.stages[0].variables", "vary nothing"),
+    ('[[optimize.stages]]\nname = "a"\n[optimize.stages.targets]\npa_max = -1.0',
+     "optimize.stages[0].targets.pa_max", "> 0"),
+    ('[[optimize.stages]]\nname = "a"\n[optimize.stages.weights]\nsharp = 1.0',
+     "optimize.stages[0].weights.sharp", "unknown key"),
+    ('full_iterations = 2\n[[optimize.stages]]\nname = "a"', "optimize.full_iterations", "per stage"),
+]
+
+
+@pytest.mark.parametrize("body,key,fragment", BAD_SCHEDULE)
+def test_bad_schedule_entries_name_the_key(make_design, freeform_text, body, key, fragment):
+    with pytest.raises(DesignError) as e:
+        make_design(freeform_text + "\n[optimize]\n" + STAGE_HEAD + body + "\n", name="free.toml")
+    assert e.value.key == key, str(e.value)
+    assert "free.toml" in str(e.value) and fragment in str(e.value) and "\n" not in str(e.value)
+
+
+def test_bad_schedule_entry_exits_2_naming_the_key(freeform_text, tmp_path, capsys):
+    from lfsim.cli import main
+
+    p = tmp_path / "free.toml"
+    p.write_text(freeform_text + "\n[optimize]\n" + STAGE_HEAD + '[[optimize.stages]]\nname = "a"\nstride = [0, 1]\n')
+    assert main(["optimize", str(p), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "optimize.stages[0].stride" in err and "free.toml" in err and not (tmp_path / "o").exists()
+    p.write_text(freeform_text + "\n[optimize]\n" + STAGE_HEAD + '[[optimize.stages]]\nname = "a"\n')
+    assert main(["optimize", str(p), "--out", str(tmp_path / "o"), "--stages", "b"]) == 2
+    assert "--stages" in capsys.readouterr().err and not (tmp_path / "o").exists()

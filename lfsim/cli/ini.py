@@ -127,18 +127,25 @@ def cmd_optimize(args) -> int:
         from ..design.optimize_section import STAGES
 
         stages = [s.strip() for s in args.stages.split(",") if s.strip()]
-        bad = [s for s in stages if s not in STAGES]
-        if bad or not stages:
-            raise InputError(f"--stages = {args.stages!r}: expected a comma-separated subset of {', '.join(STAGES)}")
-        if design.ini is None and stages != ["full"]:
+        allowed = design.optimize.stages if design.optimize.schedule is not None else STAGES
+        bad = [s for s in stages if s not in allowed]
+        if bad or not stages or len(set(stages)) != len(stages):
+            what = "stages of its [[optimize.stages]] schedule" if design.optimize.schedule is not None else "stages"
+            raise InputError(f"--stages = {args.stages!r}: expected a comma-separated subset of the {what}: "
+                             f"{', '.join(allowed)}")
+        if design.ini is None and design.optimize.schedule is None and stages != ["full"]:
             raise InputError(f"--stages = {args.stages!r}: {args.design} has no [ini]: a plain lens has only \"full\"")
     if args.iterations is not None and args.iterations < 1:
         raise InputError(f"--iterations = {args.iterations}: must be >= 1")
     stride = None if args.no_analyze else _int_pair(args.analyze_stride, "--analyze-stride")
-    quiet = args.json  # progress: a bar on a terminal, periodic lines in a log
-    log = (lambda *a, **k: None) if args.json else (lambda msg: print(msg, file=sys.stderr))
+    # progress: one line per iteration (merit, block shares, damping, step, time, ETA) on
+    # standard error, in a log as on a terminal; a bar as well on a terminal
+    from .. import progress
+
+    log = (lambda *a, **k: None) if args.json else progress.line
     doc = optimize(design, args.out, stages=stages, iterations=args.iterations, solver=args.solver,
-                   resume=args.resume, progress=not quiet, log=log, analyze_stride=stride)
+                   resume=args.resume, progress=not args.json and sys.stderr.isatty(), log=log,
+                   analyze_stride=stride)
     out = Path(args.out)
     if args.json:
         print(_dump(doc))

@@ -53,6 +53,23 @@ Schema (units mm, degrees, diopters)::
     thickness = 1.0
     tir = 1.0
 
+A schedule instead of ``stages = [...]``: ``[[optimize.stages]]`` tables run
+in the order written, each from the design the one before it ended with; every
+key but ``name`` is optional and falls back on the section's own::
+
+    [[optimize.stages]]
+    name = "coarse"          # unique; letters, digits, '_' and '-' (checkpoints/<name>.npz)
+    variables = [...]        # as [optimize] variables; a bare name listed there keeps its bounds
+    solver = "lm"
+    iterations = 40          # the stage's iteration cap
+    stride = [4, 2]          # lenslet sampling ([1, 1]: every sub-system)
+    fields = 3
+    pupil = 3
+    [optimize.stages.targets]    # replace the section's targets of the same name
+    gd_mean_deg = 0.2
+    [optimize.stages.weights]    # replace the section's weights of the same name
+    gd = 32.0
+
 Targets taken from the starting design: ``gd_max_deg`` and ``pa_max`` left out
 of the file are filled from ``[ini.analysis]`` when the section is parsed (they
 stay ``None`` without ``[ini]``, and in :meth:`OptimizeSpec.default`, where
@@ -81,6 +98,8 @@ from .errors import MISSING
 
 OPTIMIZE_KEYS = {"variables", "solver", "iterations", "full_iterations", "stages", "sampling", "targets",
                  "weights"}
+STAGE_KEYS = {"name", "variables", "solver", "iterations", "stride", "fields", "pupil", "targets", "weights"}
+_STAGE_NAME_RE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 SOLVERS = ("lm", "adam")
 #: Workflow stages in the order they run.
 STAGES = ("mla", "relay_eyepiece", "integrated", "full")
@@ -161,8 +180,23 @@ WEIGHT_KEYS = set(OptimizeWeights.__dataclass_fields__)
 
 
 @dataclass(frozen=True)
+class StageSpec:
+    """One ``[[optimize.stages]]`` entry, with the section's settings filled in."""
+
+    name: str
+    variables: tuple[Variable, ...]
+    solver: str
+    iterations: int
+    stride: tuple[int, int]
+    fields: int
+    pupil: int
+    targets: OptimizeTargets
+    weights: OptimizeWeights
+
+
+@dataclass(frozen=True)
 class OptimizeSpec:
-    """Validated ``[optimize]`` section."""
+    """Validated ``[optimize]`` section (``schedule``: its ``[[optimize.stages]]``, or None)."""
 
     variables: tuple[Variable, ...] = ()
     solver: str = "lm"
@@ -174,6 +208,13 @@ class OptimizeSpec:
     pupil: int = 4
     targets: OptimizeTargets = field(default_factory=OptimizeTargets)
     weights: OptimizeWeights = field(default_factory=OptimizeWeights)
+    schedule: tuple[StageSpec, ...] | None = None
+
+    def for_stage(self, stage: StageSpec) -> OptimizeSpec:
+        """This section with one scheduled stage's settings in place of its own."""
+        return replace(self, variables=stage.variables, solver=stage.solver, iterations=stage.iterations,
+                       stride=stage.stride, fields=stage.fields, pupil=stage.pupil, targets=stage.targets,
+                       weights=stage.weights, schedule=None, stages=("integrated",))
 
     @classmethod
     def default(cls, *, ini: bool = True) -> OptimizeSpec:
@@ -226,8 +267,8 @@ def _bound(ctx, tab, key, path):
     return float(v)
 
 
-def _variable(ctx, raw, i: int, names: set[str], system: System, ini) -> Variable:
-    path = f"optimize.variables[{i}]"
+def _variable(ctx, raw, i: int, names: set[str], system: System, ini, base="optimize.variables") -> Variable:
+    path = f"{base}[{i}]"
     if isinstance(raw, str):
         name, name_key, tab = raw, path, {}
     elif isinstance(raw, dict):
@@ -267,27 +308,26 @@ def _variable(ctx, raw, i: int, names: set[str], system: System, ini) -> Variabl
     return Variable(name, -math.inf if lo is None else lo, math.inf if hi is None else hi)
 
 
-def _sampling(ctx, tab) -> dict:
-    ctx.no_unknown(tab, SAMPLING_KEYS, "optimize.sampling")
+def _sampling(ctx, tab, p="optimize.sampling", allowed=SAMPLING_KEYS) -> dict:
+    ctx.no_unknown(tab, allowed, p)
     out = {}
     if "stride" in tab:
         st = tab["stride"]
         if not isinstance(st, list) or len(st) != 2 or any(
                 isinstance(v, bool) or not isinstance(v, int) or v < 1 for v in st):
-            raise ctx.err("optimize.sampling.stride", st, "expected [sx, sy], two integers >= 1")
+            raise ctx.err(f"{p}.stride", st, "expected [sx, sy], two integers >= 1")
         out["stride"] = (st[0], st[1])
     if "fields" in tab:
-        out["fields"] = ctx.integer(tab, "fields", "optimize.sampling", 1)
+        out["fields"] = ctx.integer(tab, "fields", p, 1)
         if out["fields"] % 2 == 0:
-            raise ctx.err("optimize.sampling.fields", out["fields"], "must be odd (the EI centre is a field)")
+            raise ctx.err(f"{p}.fields", out["fields"], "must be odd (the EI centre is a field)")
     if "pupil" in tab:
-        out["pupil"] = ctx.integer(tab, "pupil", "optimize.sampling", 2)
+        out["pupil"] = ctx.integer(tab, "pupil", p, 2)
     return out
 
 
-def _targets(ctx, tab) -> OptimizeTargets:
-    ctx.no_unknown(tab, TARGET_KEYS, "optimize.targets")
-    p = "optimize.targets"
+def _targets(ctx, tab, p="optimize.targets") -> OptimizeTargets:
+    ctx.no_unknown(tab, TARGET_KEYS, p)
     kw = {}
     for key in ("gd_max_deg", "gd_mean_deg", "pa_max", "local_distortion_max", "spot_axis_max_arcmin"):
         if key in tab:
@@ -315,9 +355,9 @@ def _targets(ctx, tab) -> OptimizeTargets:
     return OptimizeTargets(**kw)
 
 
-def _weights(ctx, tab) -> OptimizeWeights:
-    ctx.no_unknown(tab, WEIGHT_KEYS, "optimize.weights")
-    return OptimizeWeights(**{k: ctx.number(tab, k, "optimize.weights", nonneg=True) for k in tab})
+def _weights(ctx, tab, p="optimize.weights") -> OptimizeWeights:
+    ctx.no_unknown(tab, WEIGHT_KEYS, p)
+    return OptimizeWeights(**{k: ctx.number(tab, k, p, nonneg=True) for k in tab})
 
 
 def _stages(ctx, raw, ini) -> tuple[str, ...]:
@@ -338,6 +378,60 @@ def _stages(ctx, raw, ini) -> tuple[str, ...]:
     return tuple(raw)
 
 
+def _variables(ctx, raw_vars, system: System, ini, base: str, inherit=None) -> tuple[Variable, ...]:
+    """A variables list; with ``inherit`` (the section's variables), a bare name listed
+    there keeps its bounds."""
+    if not isinstance(raw_vars, list):
+        raise ctx.err(base, raw_vars, "a list of parameter names or { name, min, max } tables")
+    names = set(system.parameter_names())
+    known = {v.name: v for v in inherit or ()}
+    seen: dict[str, int] = {}
+    variables = []
+    for i, raw in enumerate(raw_vars):
+        v = _variable(ctx, raw, i, names, system, ini, base)
+        if isinstance(raw, str) and raw in known:
+            v = known[raw]
+        if v.name in seen:
+            key = f"{base}[{i}]" + (".name" if isinstance(raw, dict) else "")
+            raise ctx.err(key, v.name, f"duplicate variable (also {base}[{seen[v.name]}])")
+        seen[v.name] = i
+        variables.append(v)
+    return tuple(variables)
+
+
+def _schedule(ctx, raw, tab, system: System, ini, sec: dict) -> tuple[StageSpec, ...]:
+    """The ``[[optimize.stages]]`` tables, each filled in from the section ``sec``."""
+    stages, seen = [], {}
+    for j, st in enumerate(raw):
+        p = f"optimize.stages[{j}]"
+        if not isinstance(st, dict):
+            raise ctx.err(p, st, "every entry a table ([[optimize.stages]]) or every entry a stage name")
+        ctx.no_unknown(st, STAGE_KEYS, p)
+        name = st.get("name", MISSING)
+        if not isinstance(name, str) or not _STAGE_NAME_RE.match(name):
+            raise ctx.err(f"{p}.name", name, "required: a name of letters, digits, '_' or '-' (at most 64)")
+        if name in seen:
+            raise ctx.err(f"{p}.name", name, f"duplicate stage name (also optimize.stages[{seen[name]}])")
+        seen[name] = j
+        variables = (_variables(ctx, st["variables"], system, ini, f"{p}.variables", sec["variables"])
+                     if "variables" in st else sec["variables"])
+        if not variables:
+            raise ctx.err(f"{p}.variables", st.get("variables", []), "no variables: the stage would vary nothing")
+        solver = st.get("solver", sec["solver"])
+        if solver not in SOLVERS:
+            raise ctx.err(f"{p}.solver", solver, f"allowed: {', '.join(SOLVERS)}")
+        iterations = ctx.integer(st, "iterations", p, 1) if "iterations" in st else sec["iterations"]
+        samp = {k: sec[k] for k in ("stride", "fields", "pupil")}
+        samp.update(_sampling(ctx, {k: st[k] for k in ("stride", "fields", "pupil") if k in st}, p))
+        targets = _targets(ctx, {**ctx.table(tab, "targets", "optimize", {}), **ctx.table(st, "targets", p, {})},
+                           f"{p}.targets").resolve(ini)
+        weights = _weights(ctx, {**ctx.table(tab, "weights", "optimize", {}), **ctx.table(st, "weights", p, {})},
+                           f"{p}.weights")
+        stages.append(StageSpec(name, variables, solver, iterations, samp["stride"], samp["fields"], samp["pupil"],
+                                targets, weights))
+    return tuple(stages)
+
+
 def parse_optimize(ctx, data: dict, system: System, ini=None) -> OptimizeSpec | None:
     """Validate ``data['optimize']`` against ``system`` and its ``[ini]`` spec; None when absent."""
     if "optimize" not in data:
@@ -348,20 +442,7 @@ def parse_optimize(ctx, data: dict, system: System, ini=None) -> OptimizeSpec | 
     ctx.no_unknown(tab, OPTIMIZE_KEYS, "optimize")
     kw: dict = {}
 
-    raw_vars = tab.get("variables", [])
-    if not isinstance(raw_vars, list):
-        raise ctx.err("optimize.variables", raw_vars, "a list of parameter names or { name, min, max } tables")
-    names = set(system.parameter_names())
-    seen: dict[str, int] = {}
-    variables = []
-    for i, raw in enumerate(raw_vars):
-        v = _variable(ctx, raw, i, names, system, ini)
-        if v.name in seen:
-            key = f"optimize.variables[{i}]" + (".name" if isinstance(raw, dict) else "")
-            raise ctx.err(key, v.name, f"duplicate variable (also optimize.variables[{seen[v.name]}])")
-        seen[v.name] = i
-        variables.append(v)
-    kw["variables"] = tuple(variables)
+    kw["variables"] = _variables(ctx, tab.get("variables", []), system, ini, "optimize.variables")
 
     solver = tab.get("solver", "lm")
     if solver not in SOLVERS:
@@ -371,9 +452,20 @@ def parse_optimize(ctx, data: dict, system: System, ini=None) -> OptimizeSpec | 
         kw["iterations"] = ctx.integer(tab, "iterations", "optimize", 1)
     if "full_iterations" in tab:
         kw["full_iterations"] = ctx.integer(tab, "full_iterations", "optimize", 1)
-    kw["stages"] = _stages(ctx, tab["stages"], ini) if "stages" in tab else (
-        STAGES if ini is not None else ("full",))
+    raw_stages = tab.get("stages")
+    scheduled = isinstance(raw_stages, list) and bool(raw_stages) and isinstance(raw_stages[0], dict)
+    if not scheduled:
+        kw["stages"] = _stages(ctx, raw_stages, ini) if "stages" in tab else (
+            STAGES if ini is not None else ("full",))
     kw.update(_sampling(ctx, ctx.table(tab, "sampling", "optimize", {})))
     kw["targets"] = _targets(ctx, ctx.table(tab, "targets", "optimize", {})).resolve(ini)
     kw["weights"] = _weights(ctx, ctx.table(tab, "weights", "optimize", {}))
-    return OptimizeSpec(**kw)
+    spec = OptimizeSpec(**kw)
+    if scheduled:
+        if "full_iterations" in tab:
+            raise ctx.err("optimize.full_iterations", tab["full_iterations"],
+                          "belongs to a stages = [...] list; a [[optimize.stages]] schedule sets iterations per stage")
+        sec = {k: getattr(spec, k) for k in ("variables", "solver", "iterations", "stride", "fields", "pupil")}
+        schedule = _schedule(ctx, raw_stages, tab, system, ini, sec)
+        spec = replace(spec, schedule=schedule, stages=tuple(st.name for st in schedule))
+    return spec

@@ -205,6 +205,7 @@ class ImagingMerit:
                        rms_spot_mean_um=float(np.nanmean(rms)) if np.isfinite(rms).any() else None,
                        efl_mm=None if efl is None or not math.isfinite(efl) else float(efl),
                        rays=int(ok.size), rays_lost=int((~ok).sum()))
+        self.details = details
         return r_all, J_all, details
 
     def _trace(self, values, O, D, dO, dD, K: int):

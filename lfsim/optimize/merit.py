@@ -220,7 +220,7 @@ class IniMerit:
     """
 
     def __init__(self, design: Design, spec, cols: list[Column] | None = None, stride=None,
-                 fields: int | None = None, pupil_nodes: int | None = None):
+                 fields: int | None = None, pupil_nodes: int | None = None, efl_target=None):
         if design.ini is None:
             raise ValueError(f"{design.path}: the design has no [ini] section")
         self.design0 = design
@@ -236,8 +236,15 @@ class IniMerit:
                             else model0.values0[names.index(c.name)] for c in self.cols])
         t = spec.targets
         self.efl0 = self._references(model0)[1]["efl"]
-        self.efl_target = (np.full_like(self.efl0, t.efl_mm) if t.efl_mm is not None and math.isfinite(t.efl_mm)
-                           else self.efl0.copy())
+        if efl_target is not None:  # e.g. an earlier stage's start, so that stages do not drift
+            self.efl_target = np.array(efl_target, dtype=np.float64).reshape(self.efl0.shape)
+        elif t.efl_mm is not None and math.isfinite(t.efl_mm):
+            self.efl_target = np.full_like(self.efl0, t.efl_mm)
+        else:
+            self.efl_target = self.efl0.copy()
+        self.details: dict = {}
+        self.layout: list[tuple[str, int]] = []
+        self.rays = 0
         gl, wgl = pupil.gauss_legendre_square(self.nodes)
         self.rho = np.concatenate([np.zeros((1, 2)), pupil.MARGINAL, gl])
         self.w_gl = wgl
@@ -440,6 +447,7 @@ class IniMerit:
                        gd_mean_deg=float(gw[okc] @ gd[okc] / gw[okc].sum()) if okc.any() else None,
                        rays=self.rays, rays_lost=int(fig["lost"].sum()),
                        efl_mm=[float(v) for v in ref["efl"]])
+        self.details = details
         return r_all, J_all, details
 
     def _sample(self, model, x, subs, ref, dref, sl: slice, derivatives: bool, dense: bool) -> _Sample:

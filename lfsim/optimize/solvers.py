@@ -213,9 +213,9 @@ def _load(path, fingerprint):
 class _Monitor:
     """Progress bar, per-iteration timing, checkpoint writing and the user callback."""
 
-    def __init__(self, name, total, start, progress, checkpoint, callback):
+    def __init__(self, name, total, start, progress, checkpoint, callback, on_iteration=None):
         self.bar = tqdm(total=total, initial=start, desc=name, disable=not progress, leave=False)
-        self.checkpoint, self.callback = checkpoint, callback
+        self.checkpoint, self.callback, self.on_iteration = checkpoint, callback, on_iteration
         self.t0 = time.perf_counter()
 
     def lap(self) -> float:
@@ -228,6 +228,8 @@ class _Monitor:
         """Record an accepted iteration; True when the callback asks to stop."""
         if self.checkpoint is not None:
             _save(self.checkpoint, meta, arrays)
+        if self.on_iteration is not None and meta["history"]:
+            self.on_iteration(dict(meta["history"][-1]))
         self.bar.update(1)
         self.bar.set_postfix_str(f"cost={cost:.6g}")
         return bool(self.callback(iteration, x.copy(), cost)) if self.callback is not None else False
@@ -266,7 +268,7 @@ def _result(meta, x, status) -> OptimizeResult:
 def levenberg_marquardt(problem: Problem, x0, bounds: Bounds | None = None, max_iterations: int = 50,
                         lambda0: float = 1e-3, ftol: float = 1e-10, xtol: float = 1e-12, gtol: float = 1e-10,
                         scale=None, checkpoint=None, resume: bool = False, progress: bool = False,
-                        callback: Callable | None = None) -> OptimizeResult:
+                        callback: Callable | None = None, on_iteration: Callable | None = None) -> OptimizeResult:
     """Damped least squares (Levenberg 1944; Marquardt 1963) with Nielsen's damping update.
 
     In scaled units ``z = x/scale`` each trial step ``h`` minimises
@@ -296,7 +298,8 @@ def levenberg_marquardt(problem: Problem, x0, bounds: Bounds | None = None, max_
     History records: ``iteration``, ``cost`` (after the step), ``lambda`` (the
     damping of the accepted step), ``step_norm`` (‖h‖, scaled), ``grad_norm``
     (max-norm of the projected gradient at the new point, scaled), ``seconds``.
-    ``callback(iteration, x, cost)`` returning True stops with ``"stopped"``.
+    ``callback(iteration, x, cost)`` returning True stops with ``"stopped"``;
+    ``on_iteration(record)`` receives each history record as it is made (a log line).
     """
     x0, lower, upper, scale = _setup(x0, bounds, scale)
     settings = {"lambda0": float(lambda0), "ftol": float(ftol), "xtol": float(xtol), "gtol": float(gtol)}
@@ -306,7 +309,7 @@ def levenberg_marquardt(problem: Problem, x0, bounds: Bounds | None = None, max_
     d = arrays.get("d", np.zeros(x.size))
     lam, nu = meta.get("lam", float(lambda0)), meta.get("nu", 2.0)
     cost, status = meta["cost"], meta["status"]
-    mon = _Monitor("LM", max_iterations, meta["iteration"], progress, checkpoint, callback)
+    mon = _Monitor("LM", max_iterations, meta["iteration"], progress, checkpoint, callback, on_iteration)
     try:
         while status is None:
             Js = J * scale
@@ -376,7 +379,8 @@ def levenberg_marquardt(problem: Problem, x0, bounds: Bounds | None = None, max_
 
 def adam(problem: Problem, x0, bounds: Bounds | None = None, iterations: int = 200, lr: float = 1e-2,
          betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8, scale=None, checkpoint=None,
-         resume: bool = False, progress: bool = False, callback: Callable | None = None) -> OptimizeResult:
+         resume: bool = False, progress: bool = False, callback: Callable | None = None,
+         on_iteration: Callable | None = None) -> OptimizeResult:
     """Adam (Kingma & Ba 2015, Algorithm 1) on the merit gradient ``2 Jᵀr`` in scaled units.
 
     ``m ← β₁m + (1−β₁)g``, ``v ← β₂v + (1−β₂)g²``, ``z ← z − lr·m̂/(√v̂ + eps)`` with
@@ -388,7 +392,8 @@ def adam(problem: Problem, x0, bounds: Bounds | None = None, iterations: int = 2
     ``iterations`` counts accepted updates, one ``jacobian`` call each. The
     result is the best iterate seen (lowest cost), not necessarily the last;
     history records (``iteration``, ``cost``, ``lr``, ``step_norm``,
-    ``grad_norm``, ``seconds``) describe every accepted update.
+    ``grad_norm``, ``seconds``) describe every accepted update; ``on_iteration``
+    receives each as it is made.
     """
     x0, lower, upper, scale = _setup(x0, bounds, scale)
     b1, b2 = float(betas[0]), float(betas[1])
@@ -401,7 +406,7 @@ def adam(problem: Problem, x0, bounds: Bounds | None = None, iterations: int = 2
     meta.setdefault("lr_factor", 1.0)
     meta.setdefault("best_cost", meta["cost"])
     status, halvings = meta["status"], 0
-    mon = _Monitor("Adam", iterations, meta["iteration"], progress, checkpoint, callback)
+    mon = _Monitor("Adam", iterations, meta["iteration"], progress, checkpoint, callback, on_iteration)
     try:
         while status is None:
             g = 2.0 * (J * scale).T @ r

@@ -60,6 +60,60 @@ def _summary(details: dict) -> dict:
     return {k: (round(v, 6) if isinstance(v, float) else v) for k, v in details.items()}
 
 
+def block_shares(details: dict, layout) -> dict:
+    """Each residual block's share of the merit (aperture_* and tir_* blocks summed)."""
+    sums: dict = {}
+    for name, _ in layout:
+        key = "aperture" if name.startswith("aperture_") else "tir" if name.startswith("tir_") else name
+        sums[key] = sums.get(key, 0.0) + float(details.get(name, 0.0))
+    total = sum(sums.values())
+    return {k: v / total for k, v in sums.items()} if total > 0 else {k: 0.0 for k in sums}
+
+
+def _duration(seconds: float) -> str:
+    s = int(round(seconds))
+    return f"{s // 60}:{s % 60:02d}"
+
+
+class _Plan:
+    """One stage to run: its name, merit settings, variables, sampling, cap and solver."""
+
+    def __init__(self, name, spec, cols, stride, iterations, solver):
+        self.name, self.spec, self.cols, self.stride = name, spec, cols, stride
+        self.iterations, self.solver = iterations, solver
+
+
+def plans(design: Design, stages=None, iterations: int | None = None, solver: str | None = None) -> list[_Plan]:
+    """The stages a run goes through: the design's ``[[optimize.stages]]`` schedule (or
+    the named subset of it), or the workflow stages of a ``stages = [...]`` list.
+    ``iterations`` and ``solver`` override every stage's."""
+    spec = design.optimize
+    if spec.schedule is not None:
+        chosen = list(stages or spec.stages)
+        by_name = {st.name: st for st in spec.schedule}
+        bad = [n for n in chosen if n not in by_name]
+        if bad:
+            raise ValueError(f"{design.path}: no stage {bad[0]!r} in [[optimize.stages]] "
+                             f"(the schedule has {', '.join(by_name)})")
+        out = []
+        for st in spec.schedule:
+            if st.name not in chosen:
+                continue
+            sub = spec.for_stage(st)
+            out.append(_Plan(st.name, sub, columns(design, sub), st.stride, int(iterations or st.iterations),
+                             solver or st.solver))
+        return out
+    all_cols = columns(design, spec)
+    out = []
+    for stage in list(stages or spec.stages):
+        n_it = int(iterations or spec.iterations)
+        if stage == "full" and spec.full_iterations is not None and iterations is None:
+            n_it = spec.full_iterations
+        out.append(_Plan(stage, spec, stage_columns(design, all_cols, stage), (1, 1) if stage == "full" else None,
+                         n_it, solver or spec.solver))
+    return out
+
+
 def optimize(design: Design, out_dir, stages=None, iterations: int | None = None, solver: str | None = None,
              resume: bool = False, progress: bool = False, log=print, analyze_stride=(4, 2)) -> dict:
     """Run the stages; write the optimized design, the merit history and plots.
@@ -83,41 +137,56 @@ def optimize(design: Design, out_dir, stages=None, iterations: int | None = None
         raise ValueError(f"{design.path}: the design has no [optimize] section")
     if not spec.variables:
         raise ValueError(f"{design.path}: optimize.variables is empty: nothing to vary")
+    todo = plans(design, stages, iterations, solver)
     out = Path(out_dir)
     (out / "checkpoints").mkdir(parents=True, exist_ok=True)
-    stages = list(stages or spec.stages)
-    override = iterations
-    iterations = int(iterations or spec.iterations)
-    solver = solver or spec.solver
-    all_cols = columns(design, spec)
     current = design
-    doc = {"design": design.path, "solver": solver, "iterations_per_stage": iterations,
-           "variables": [c.label for c in all_cols], "stages": []}
+    solvers = sorted({p.solver for p in todo})
+    doc = {"design": design.path, "solver": solvers[0] if len(solvers) == 1 else ",".join(solvers),
+           "iterations_per_stage": todo[0].iterations if todo else 0,
+           "schedule": spec.schedule is not None,
+           "variables": [c.label for c in columns(design, spec)], "stages": []}
+    efl_target = None  # a schedule keeps the input design's focal length through every stage
     t_all = time.perf_counter()
-    for stage in stages:
-        cols = stage_columns(design, all_cols, stage)
+    for plan in todo:
+        stage, cols, n_it = plan.name, plan.cols, plan.iterations
         if not cols:
             log(f"stage {stage}: no variables, skipped")
             continue
-        stride = (1, 1) if stage == "full" else None
         t0 = time.perf_counter()
-        merit = (IniMerit(current, spec, cols=cols, stride=stride) if current.ini is not None
-                 else ImagingMerit(current, spec, cols=cols))
+        if current.ini is not None:
+            merit = IniMerit(current, plan.spec, cols=cols, stride=plan.stride, efl_target=efl_target)
+            if spec.schedule is not None and efl_target is None:
+                efl_target = merit.efl_target
+        else:
+            merit = ImagingMerit(current, plan.spec, cols=cols)
         lo, hi = merit.bounds
         x0 = np.clip(merit.x0, lo, hi)
         r0, _, det0 = merit.evaluate(x0, derivatives=False)
         ckpt = out / "checkpoints" / f"{stage}.npz"
-        log(f"stage {stage}: {len(cols)} variables, {merit.rays} rays, merit {float(r0 @ r0):.6g}")
+        log(f"stage {stage}: {len(cols)} variables, {merit.rays} rays, stride "
+            f"{merit.stride[0]}x{merit.stride[1]}, up to {n_it} iterations ({plan.solver}), merit {float(r0 @ r0):.6g}")
         scale = np.maximum(np.abs(x0), 1e-3)
-        n_it = iterations
-        if stage == "full" and spec.full_iterations is not None and override is None:
-            n_it = spec.full_iterations
-        def solve(resume_stage):
-            if solver == "lm":
-                return levenberg_marquardt(merit, x0, Bounds(lo, hi), max_iterations=n_it, scale=scale,
-                                           checkpoint=ckpt, resume=resume_stage, progress=progress)
-            return adam(merit, x0, Bounds(lo, hi), iterations=n_it, scale=scale, checkpoint=ckpt,
-                        resume=resume_stage, progress=progress)
+        lap = {"t": time.perf_counter(), "times": []}
+
+        def report(rec, stage=stage, merit=merit, n_it=n_it, lap=lap):
+            now = time.perf_counter()
+            lap["times"].append(now - lap["t"])
+            lap["t"] = now
+            shares = block_shares(merit.details, merit.layout)
+            top = ", ".join(f"{k} {100 * v:.0f}%" for k, v in sorted(shares.items(), key=lambda kv: -kv[1])
+                            if v >= 0.01)
+            damp = f"lambda {rec['lambda']:.3g}" if "lambda" in rec else f"lr {rec['lr']:.3g}"
+            eta = float(np.mean(lap["times"][-5:])) * (n_it - rec["iteration"])
+            log(f"  {stage} {rec['iteration']}/{n_it}: merit {rec['cost']:.6g} ({top}); {damp}, step "
+                f"{rec['step_norm']:.3g}, {lap['times'][-1]:.1f} s; stage ETA {_duration(eta)} at most")
+
+        def solve(resume_stage, plan=plan, merit=merit, x0=x0, lo=lo, hi=hi, ckpt=ckpt, scale=scale,
+                  n_it=n_it, report=report):
+            kw = dict(scale=scale, checkpoint=ckpt, resume=resume_stage, progress=progress, on_iteration=report)
+            if plan.solver == "lm":
+                return levenberg_marquardt(merit, x0, Bounds(lo, hi), max_iterations=n_it, **kw)
+            return adam(merit, x0, Bounds(lo, hi), iterations=n_it, **kw)
 
         try:
             res = solve(resume)
@@ -135,9 +204,9 @@ def optimize(design: Design, out_dir, stages=None, iterations: int | None = None
         current = merit.design_at(res.x)
         secs = time.perf_counter() - t0
         rec = {"stage": stage, "variables": [c.label for c in cols], "stride": list(merit.stride),
-               "rays": merit.rays, "status": res.status, "iterations": res.iterations,
-               "evaluations": res.evaluations, "merit_start": float(r0 @ r0), "merit_end": float(r1 @ r1),
-               "blocks_start": _summary(det0), "blocks_end": _summary(det1),
+               "solver": plan.solver, "rays": merit.rays, "status": res.status, "iterations": res.iterations,
+               "max_iterations": n_it, "evaluations": res.evaluations, "merit_start": float(r0 @ r0),
+               "merit_end": float(r1 @ r1), "blocks_start": _summary(det0), "blocks_end": _summary(det1),
                "x_start": [float(v) for v in x0], "x_end": [float(v) for v in res.x],
                "history": res.history, "seconds": round(secs, 2)}
         doc["stages"].append(rec)
@@ -146,12 +215,20 @@ def optimize(design: Design, out_dir, stages=None, iterations: int | None = None
     doc["seconds"] = round(time.perf_counter() - t_all, 2)
     stem = Path(design.path or "design").stem
     path = out / f"{stem}_optimized.toml"
-    header = [f"{design.name}: optimized by `lfsim optimize` from {Path(design.path or '').name}",
-              f"solver {solver}, stages {', '.join(r['stage'] for r in doc['stages'])}, "
+    src = Path(design.path or "design.toml")
+    try:
+        shown = src.resolve().relative_to(Path.cwd().resolve())
+    except ValueError:
+        shown = src
+    header = [f"{design.name}: optimized from {src.name} by one run of",
+              f"  lfsim optimize {shown} --out {out}",
+              f"solver {doc['solver']}, stages {', '.join(r['stage'] for r in doc['stages'])}, "
               f"{doc['seconds']:.0f} s"]
     for r in doc["stages"]:
         header.append(f"  {r['stage']}: merit {r['merit_start']:.6g} -> {r['merit_end']:.6g} "
-                      f"({r['iterations']} iterations, {r['status']}, stride {r['stride'][0]}x{r['stride'][1]})")
+                      f"({r['iterations']} of at most {r['max_iterations']} iterations, {r['status']}, "
+                      f"stride {r['stride'][0]}x{r['stride'][1]}, {len(r['variables'])} variables, "
+                      f"{r['seconds']:.0f} s)")
     header.append("Evaluate with: lfsim analyze THIS_FILE --out DIR --stride 1,1")
     raw = dict(current.raw)
     raw["name"] = design.name if "optimized" in design.name.lower() else f"{design.name} (optimized)"
