@@ -71,7 +71,7 @@ def cases(tmp: Path) -> list[tuple[str, list[str]]]:
         ("gradcheck ini_coaxial", ["gradcheck", s + "ini_coaxial.toml", "--param", "mla.pitch_x",
                                    "--resolution", "48,27", "--spp", "4", "--focus-mm", "1000", "--json"]),
         ("optimize ini_freeform 1 iteration", ["optimize", s + "ini_freeform.toml", "--out", str(tmp / "opt"),
-                                               "--stages", "integrated", "--iterations", "1", "--no-analyze",
+                                               "--stages", "coarse", "--iterations", "1", "--no-analyze",
                                                "--json"]),
     ]
 

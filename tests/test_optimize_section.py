@@ -42,8 +42,9 @@ def freeform_text():
     import re
 
     text = (SCENES / "ini_freeform.toml").read_text()
-    # drop from "[optimize]" up to the next table that is not an [optimize.*] table
-    return re.sub(r"(?ms)^\[optimize(\.[a-z]+)?\]\n.*?(?=^\[(?!optimize))", "", text)
+    # drop from "[optimize]" up to the next table that is not an [optimize.*] table or
+    # a [[optimize.stages]] entry
+    return re.sub(r"(?ms)^\[\[?optimize(\.[a-z.]+)?\]\]?\n.*?(?=^\[(?!\[?optimize))", "", text)
 
 
 @pytest.fixture(scope="module")

@@ -409,7 +409,8 @@ MAX_RAY_COPIES = 1_000_000
 
 
 def trace_rays_jacobian(model: IniModel, s, m, n, rho, k, columns, record=(), iterations: int = 30,
-                        derivatives: bool = True, max_ray_copies: int | None = None, ds=None) -> RayJacobian:
+                        derivatives: bool = True, max_ray_copies: int | None = None, ds=None, select=None,
+                        column_scale=None) -> RayJacobian:
     """:func:`trace_rays` plus forward-mode derivatives, in launches of at most
     ``max_ray_copies`` rays × (K + 4) copies (K + 2 with ``ds``; default
     :data:`MAX_RAY_COPIES`).
@@ -421,19 +422,25 @@ def trace_rays_jacobian(model: IniModel, s, m, n, rho, k, columns, record=(), it
     it, copy j moves column j and the display point together, the re-aiming
     is applied inside the kernel, and only the K total derivatives come back
     (``ds_*`` are None): the same totals as ``d_* + ds_* · ds`` without
-    ``ds``, in about half the memory and host time.
+    ``ds``, in about half the memory and host time. Then also ``select``
+    (optional): a function of the values (a :class:`RayJacobian` without
+    derivatives) returning an (N, len(record)) mask of the recorded hits whose
+    derivatives are needed (a constraint that is active there); the others
+    come back as 0 and are neither computed nor copied. ``column_scale`` (K,):
+    factors applied to the derivative columns (with ``ds``).
     """
     N = len(np.asarray(s).reshape(-1, 2))
     C = len(columns) + (4 if ds is None else 2) if derivatives else 1
     budget = MAX_RAY_COPIES if max_ray_copies is None else int(max_ray_copies)
     step = max(1, budget // C)
     if N <= step:
-        return _trace_rays_jacobian(model, s, m, n, rho, k, columns, record, iterations, derivatives, ds)
+        return _trace_rays_jacobian(model, s, m, n, rho, k, columns, record, iterations, derivatives, ds, select,
+                                    column_scale)
     s, rho = np.asarray(s).reshape(-1, 2), np.asarray(rho).reshape(-1, 2)
     m, n, k = (np.broadcast_to(np.asarray(a), (N,)) for a in (m, n, k))
     parts = [_trace_rays_jacobian(model, s[i:i + step], m[i:i + step], n[i:i + step], rho[i:i + step],
                                   k[i:i + step], columns, record, iterations, derivatives,
-                                  None if ds is None else ds[i:i + step])
+                                  None if ds is None else ds[i:i + step], select, column_scale)
              for i in range(0, N, step)]
     return RayJacobian(**{f.name: (None if getattr(parts[0], f.name) is None else
                                    np.concatenate([getattr(p, f.name) for p in parts], axis=0))
@@ -441,7 +448,7 @@ def trace_rays_jacobian(model: IniModel, s, m, n, rho, k, columns, record=(), it
 
 
 def _trace_rays_jacobian(model: IniModel, s, m, n, rho, k, columns, record=(), iterations: int = 30,
-                         derivatives: bool = True, ds=None) -> RayJacobian:
+                         derivatives: bool = True, ds=None, select=None, column_scale=None) -> RayJacobian:
     """:func:`trace_rays` plus forward-mode derivatives, in one Dr.Jit launch.
 
     ``columns``: K pairs ``(parameter name, CDP state or None)``; a column
@@ -540,8 +547,11 @@ def _trace_rays_jacobian(model: IniModel, s, m, n, rho, k, columns, record=(), i
         # One kernel for every value and derivative (evaluated one by one, each would
         # re-run the whole trace).
         dr.eval(*outs, out.status, *grads)
-        if fused:
-            vals0, status0, totals = _reaimed_totals(T, opq, outs, out.status, grads, N, K)
+        if fused:  # the values of copy 0 (every copy has the same)
+            first = dr.arange(T.UInt32, N)
+            vals0 = [dr.gather(T.Float, v, first) for v in outs]
+            status0 = dr.gather(type(out.status), out.status, first)
+            dr.eval(*vals0, status0)
     nS = len(record)
     if fused:
         val = np.stack([np.asarray(v, dtype=np.float64) for v in vals0], axis=1)  # (N, O)
@@ -557,12 +567,31 @@ def _trace_rays_jacobian(model: IniModel, s, m, n, rho, k, columns, record=(), i
                            d_cos_in=z((N, nS, 0)), ds_pos=z((N, 2, 2)), ds_dir=z((N, 3, 2)),
                            ds_surf=z((N, nS, 2, 2)), ds_cos_in=z((N, nS, 2)))
     if fused:
-        tp = np.stack([np.asarray(v, dtype=np.float64).reshape(K, N) for v in totals], axis=1)  # (K, O', N)
-        tp = np.transpose(tp, (2, 1, 0))  # (N, O', K): the outputs but the stop hit (it is held)
-        tp[status != 0] = 0.0
-        sp_ = tp[:, 5:, :].reshape(N, nS, 3, K) if nS else np.zeros((N, 0, 3, K))
-        return RayJacobian(**res, d_pos=tp[:, 0:2], d_dir=tp[:, 2:5], d_surf=sp_[:, :, :2],
-                           d_cos_in=sp_[:, :, 2], ds_pos=None, ds_dir=None, ds_surf=None, ds_cos_in=None)
+        scale = np.ones(K) if column_scale is None else np.asarray(column_scale, dtype=np.float64)
+
+        def fetch(outputs, rays):  # (n, len(outputs), K) totals of these outputs for these rays
+            tot = _reaimed_totals(T, opq, grads, out.status, outputs, rays, N, K)
+            n_ = N if rays is None else len(rays)
+            a = np.empty((n_, len(outputs), K))
+            for o_, v in enumerate(tot):
+                a[:, o_, :] = np.asarray(v, dtype=np.float64).reshape(K, n_).T
+            return a * scale
+
+        with dr.suspend_grad():
+            pd = fetch(list(range(2, 7)), None)  # VW position and direction: every ray
+            need = (np.ones((N, nS), dtype=bool) if select is None
+                    else np.asarray(select(RayJacobian(**res, d_pos=None, d_dir=None, d_surf=None, d_cos_in=None,
+                                                       ds_pos=None, ds_dir=None, ds_surf=None, ds_cos_in=None)),
+                                    dtype=bool).reshape(N, nS))
+            # recorded hits: only where asked (np.zeros maps untouched pages lazily)
+            d_surf, d_cos = np.zeros((N, nS, 2, K)), np.zeros((N, nS, K))
+            for j in range(nS):
+                idx = np.nonzero(need[:, j])[0]
+                if idx.size:
+                    a = fetch([7 + 3 * j, 8 + 3 * j, 9 + 3 * j], idx)
+                    d_surf[idx, j], d_cos[idx, j] = a[:, 0:2], a[:, 2]
+        return RayJacobian(**res, d_pos=pd[:, 0:2], d_dir=pd[:, 2:5], d_surf=d_surf, d_cos_in=d_cos,
+                           ds_pos=None, ds_dir=None, ds_surf=None, ds_cos_in=None)
     G = np.stack([np.asarray(gv, dtype=np.float64).reshape(C, N) for gv in grads], axis=1)  # (C, O, N)
     G = np.moveaxis(G, 2, 0)  # (N, C, O)
     dt = G[:, K:K + 2, :]  # (N, 2, O)
@@ -584,35 +613,37 @@ def _trace_rays_jacobian(model: IniModel, s, m, n, rho, k, columns, record=(), i
                        ds_pos=ts[:, 2:4], ds_dir=ts[:, 4:7], ds_surf=ss_[:, :, :2], ds_cos_in=ss_[:, :, 2])
 
 
-def _reaimed_totals(T, opq, outs, status, grads, N: int, K: int):
-    """Total derivatives of ``outs[2:]`` for copies 0..K−1, re-aimed on the device.
+def _reaimed_totals(T, opq, grads, status, outputs, rays, N: int, K: int):
+    """Total derivatives of ``grads[o]`` for ``o`` in ``outputs``, copies 0..K−1, re-aimed
+    on the device, for every ray (``rays`` None) or the rays at the indices ``rays``.
 
     Lane (j, i) of the forward pass holds the partial derivatives of ray i for
     copy j; copies K and K + 1 hold those for the launch slope. Holding the
-    stop hit ``outs[0:2]`` fixed, ``dt = −A⁻¹ ∂stop/∂p`` with A = ∂stop/∂t,
+    stop hit (``grads[0:2]``) fixed, ``dt = −A⁻¹ ∂stop/∂p`` with A = ∂stop/∂t,
     and ``total = ∂o/∂p + ∂o/∂t · dt`` (implicit function theorem). Rays that
-    failed, a singular A or a non-finite total give 0. Returns the values of
-    copy 0 (N lanes), its status and the K·N-lane totals of ``outs[2:]``.
+    failed, a singular A or a non-finite total give 0. Returns one array of
+    K·n lanes (copy-major) per output.
     """
-    i = dr.arange(T.UInt32, K * N)
-    ray = i % opq(N, "UInt32")
-    first = dr.arange(T.UInt32, N)
-    vals = [dr.gather(T.Float, v, first) for v in outs]
-    st = dr.gather(type(status), status, first)
+    n = N if rays is None else len(rays)
+    i = dr.arange(T.UInt32, K * n)
+    e = i % opq(n, "UInt32")
+    ray = e if rays is None else dr.gather(T.UInt32, from_numpy(T.UInt32, np.asarray(rays, dtype=np.uint32)), e)
+    lane = (i // opq(n, "UInt32")) * opq(N, "UInt32") + ray
     tx_lane = ray + opq(K * N, "UInt32")
     ty_lane = tx_lane + opq(N, "UInt32")
     a, b = dr.gather(T.Float, grads[0], tx_lane), dr.gather(T.Float, grads[0], ty_lane)
     c, d = dr.gather(T.Float, grads[1], tx_lane), dr.gather(T.Float, grads[1], ty_lane)
-    px, py = dr.gather(T.Float, grads[0], i), dr.gather(T.Float, grads[1], i)
+    px, py = dr.gather(T.Float, grads[0], lane), dr.gather(T.Float, grads[1], lane)
     det = a * d - b * c
     good = (dr.gather(type(status), status, ray) == 0) & (det != 0.0)
     inv = 1.0 / dr.select(good, det, 1.0)
     dtx = -(d * px - b * py) * inv
     dty = -(a * py - c * px) * inv
     totals = []
-    for gv in grads[2:]:
-        tot = (dr.gather(T.Float, gv, i) + dtx * dr.gather(T.Float, gv, tx_lane)
+    for o in outputs:
+        gv = grads[o]
+        tot = (dr.gather(T.Float, gv, lane) + dtx * dr.gather(T.Float, gv, tx_lane)
                + dty * dr.gather(T.Float, gv, ty_lane))
         totals.append(dr.select(good & dr.isfinite(tot), tot, 0.0))
-    dr.eval(*vals, st, *totals)
-    return vals, st, totals
+    dr.eval(*totals)
+    return totals

@@ -60,6 +60,7 @@ import numpy as np
 from ..design.design import Design
 from ..ini.model import IniModel
 from ..ini.subsystems import Subsystems, field_grid, sample, trace_rays_jacobian
+from ..ini.views import StackedViews
 from ..metrics import distortion, footprint, pupil, spot
 from ..metrics.spot import ARCMIN
 from ..optics.solids import prism_thickness, prisms
@@ -291,30 +292,17 @@ class IniMerit:
                       fields=field_grid(self.fields, model.spec.field_fraction))
 
     def _references(self, model: IniModel):
-        """First-order references of the sampled sub-systems: display points (S, F, 2),
-        paraxial retinal tangents of the chief rays (S, F, 2), paraxial VW positions
-        of the marginal rays (S, F, 4, 2), footprint widths d_v (S,), EFL per state."""
+        """The sampled sub-systems and their first-order references (:mod:`lfsim.ini.views`):
+        display points (S, F, 2), paraxial retinal tangents of the chief rays (S, F, 2),
+        paraxial VW positions of the marginal rays (S, F, 4, 2), footprint widths d_v
+        (S,), EFL per state."""
         subs = self._subs(model)
-        S, F = subs.display.shape[:2]
-        par_c = np.empty((S, F, 2))
-        par_m = np.empty((S, F, 4, 2))
-        d_v = np.empty(S)
-        for kk in np.unique(subs.k):
-            sel = subs.k == kk
-            sd = subs.display[sel]
-            c = np.broadcast_to(subs.center[sel][:, None, :], sd.shape)
-            pc = model.paraxial_vw(int(kk), sd, c, np.zeros_like(sd))
-            par_c[sel] = pc[..., 2:4] - pc[..., 0:2] * (model.depths[int(kk)] / 1000.0)
-            sm = np.broadcast_to(sd[:, :, None, :], sd.shape[:2] + (4, 2))
-            cm = np.broadcast_to(subs.center[sel][:, None, None, :], sm.shape)
-            par_m[sel] = model.paraxial_vw(int(kk), sm, cm, np.broadcast_to(pupil.MARGINAL, sm.shape))[..., 0:2]
-            d_v[sel] = np.mean(model.state(int(kk)).d_v)
-        with np.errstate(divide="ignore"):
-            efl = -0.5 * (1.0 / model.JG[:, 2, 0] + 1.0 / model.JG[:, 3, 1])
-        return subs, dict(display=subs.display, par_c=par_c, par_m=par_m, d_v=d_v, efl=efl)
+        ref = StackedViews(model, [model]).references(subs, display=subs.display[None])
+        return subs, {key: v[0] for key, v in ref.items()}
 
-    def _reference_derivatives(self, model: IniModel, x):
-        """Central differences (K columns) of :meth:`_references` from first-order views."""
+    def _reference_derivatives(self, model: IniModel, x, subs=None):
+        """Central differences (K columns) of :meth:`_references` from first-order views,
+        all 2K views in two launches and one stacked evaluation."""
         nd = len(model.depths)
         names = model.tracer.names
         base = np.array([model.values(k) for k in range(nd)])
@@ -330,14 +318,9 @@ class IniMerit:
                 vals.append(b)
         if not vals:
             return {}
-        views = model.linear_views(np.array(vals))
-        refs = [self._references(v)[1] for v in views]
-        out = {}
-        for key in refs[0]:
-            plus = np.stack([refs[2 * j][key] for j in range(len(self.cols))], axis=-1)
-            minus = np.stack([refs[2 * j + 1][key] for j in range(len(self.cols))], axis=-1)
-            out[key] = (plus - minus) / (2.0 * steps)
-        return out
+        subs = subs if subs is not None else self._subs(model)
+        ref = StackedViews(model, model.linear_views(np.array(vals))).references(subs)
+        return {key: np.moveaxis(v[0::2] - v[1::2], 0, -1) / (2.0 * steps) for key, v in ref.items()}
 
     @staticmethod
     def _grid_weights(model: IniModel, subs) -> np.ndarray:
@@ -364,14 +347,17 @@ class IniMerit:
         k = np.broadcast_to(subs.k[:, None, None], shape).ravel()
         record = self._record(model)
         cols = [(c.name, c.state) for c in self.cols]
+        # tunable-lens columns: the tracer's power is in 1/mm, the variable in diopters
         conv = np.array([1e-3 if c.state is not None else 1.0 for c in self.cols])
-        if ds is not None:  # the display-point derivatives are per variable, the tracer's power per 1/mm
-            ds = ds / conv
-        J = trace_rays_jacobian(model, s, m, n, rho, k, cols, record=record, derivatives=derivatives,
-                                ds=ds, max_ray_copies=None if ds is None else MERIT_RAY_COPIES)
-        if derivatives:  # tunable-lens columns: the tracer's power is in 1/mm, the variable in diopters
-            J.d_pos, J.d_dir, J.d_surf, J.d_cos_in = (J.d_pos * conv, J.d_dir * conv, J.d_surf * conv,
-                                                      J.d_cos_in * conv)
+        if ds is not None:  # lean: the chain rule, the re-aiming and the units inside the trace
+            J = trace_rays_jacobian(model, s, m, n, rho, k, cols, record=record, derivatives=derivatives,
+                                    ds=ds / conv, max_ray_copies=MERIT_RAY_COPIES, select=self._select(model),
+                                    column_scale=conv)
+        else:
+            J = trace_rays_jacobian(model, s, m, n, rho, k, cols, record=record, derivatives=derivatives)
+            if derivatives:
+                J.d_pos, J.d_dir, J.d_surf, J.d_cos_in = (J.d_pos * conv, J.d_dir * conv, J.d_surf * conv,
+                                                          J.d_cos_in * conv)
         return shape, J
 
     def _record(self, model: IniModel) -> list[int]:
@@ -412,15 +398,14 @@ class IniMerit:
         model = self.model_at(x)
         K = len(self.cols)
         subs, ref = self._references(model)
-        dref = self._reference_derivatives(model, x) if derivatives and K else {}
+        dref = self._reference_derivatives(model, x, subs) if derivatives and K else {}
         S, F, R = len(subs), subs.display.shape[1], len(self.rho)
         per = S if dense else max(1, MERIT_RAY_COPIES // ((K + 2 if derivatives else 1) * F * R))
         rows = Rows(K, derivatives, compress=not dense)
         parts = []
         for a in range(0, S, per):
             st = self._sample(model, x, subs, ref, dref, slice(a, min(S, a + per)), derivatives, dense)
-            for block in (self._lost, self._spot, self._gd, self._pa, self._distortion, self._crosstalk,
-                          self._tir, self._apertures):
+            for block in (self._lost, self._spot, self._gd, self._pa, self._distortion, self._recorded):
                 for name, r, j in block(st):
                     rows.add(name, r, j)
             parts.append(st.figures)
@@ -595,64 +580,81 @@ class IniMerit:
         yield ("distortion", *_hinge(st, over, (ld - t.local_distortion_max) * 100.0 * w.distortion,
                                      lambda ix: dld[ix] * 100.0 * w.distortion))
 
-    def _crosstalk(self, st: _Sample):
-        """Pupil and marginal rays beyond (½ − margin) of the cell on every MLA surface, µm."""
-        t, w, n = self.spec.targets, self.spec.weights, st.nmla
-        lim = (0.5 - (t.crosstalk_margin or 0.0)) * np.array(st.model.arr.pitch)
-        hs = st.surf[:, :, :, :n]
-        ex = np.abs(hs) - lim
-        over = (ex > 0) & st.ok[..., None, None]
-        scale = 1000.0 * w.crosstalk
-        yield ("crosstalk", *_hinge(st, over, ex * scale,
-                                    lambda ix: np.sign(hs[ix])[..., None] * st.dsurf[:, :, :, :n][ix] * scale))
-
-    def _tir(self, st: _Sample):
-        """Incidence below the critical angle + margin on surfaces that rely on TIR, °."""
-        t, w, model = self.spec.targets, self.spec.weights, st.model
-        if not st.tirs or t.tir_margin_deg is None:
-            return
-        vals, names = model.values(0), model.tracer.names
-        for j_, i in enumerate(st.tirs):
-            n1 = vals[names.index(model.tracer.vector.media[i])]
-            n2 = vals[names.index(f"{model.system.surfaces[i].name}.index")]
-            theta_c = math.degrees(math.asin(min(1.0, n2 / n1)))
-            cosv = np.clip(st.cos_in[:, :, :, st.nmla + j_], -1.0, 1.0)
-            th = np.degrees(np.arccos(cosv))
-            need = theta_c + t.tir_margin_deg
-            over = st.ok & (th < need)
-
-            def jac(ix, j_=j_, cosv=cosv):
-                sin = np.maximum(np.sqrt(1.0 - cosv[ix] ** 2), 1e-12)
-                return st.dcos[:, :, :, st.nmla + j_][ix] / sin[..., None] * DEG * w.tir
-
-            yield (f"tir_{model.system.surfaces[i].name}", *_hinge(st, over, (need - th) * w.tir, jac))
-
-    def _apertures(self, st: _Sample):
-        """Rays of the pupil beyond a clear aperture (the analysis vignettes them
-        there) less ``aperture_margin_mm``, µm beyond the edge."""
-        t, w, model = self.spec.targets, self.spec.weights, st.model
-        off = st.nmla + len(st.tirs)
-        scale = 1000.0 * w.crosstalk
+    def _limits(self, model: IniModel, surf, cos_in, ok):
+        """The constraint of every recorded hit, for hits of any leading shape (…):
+        ``surf`` (…, nrec, 2), ``cos_in`` (…, nrec), ``ok`` (…). Yields ``(block, j,
+        kind, excess, over, aux)`` per recorded surface j: ``kind`` "axes" (excess and
+        over per axis (…, 2), aux the hit), "tir" (…; aux the incidence cosine) or
+        "radial" (…; aux (hit, radius)). One definition for the residual blocks and
+        for choosing which derivatives the trace returns (:meth:`_select`)."""
+        t = self.spec.targets
+        nmla = len(self._crosstalk_surfaces(model))
+        tirs, aps = self._tir_surfaces(model), self._aperture_surfaces(model)
+        lim = (0.5 - (t.crosstalk_margin or 0.0)) * np.array(model.arr.pitch)
+        for j in range(nmla):  # pupil and marginal rays beyond (½ − margin) of the cell, per MLA surface
+            hs = surf[..., j, :]
+            ex = np.abs(hs) - lim
+            yield "crosstalk", j, "axes", ex, (ex > 0) & ok[..., None], hs
+        if t.tir_margin_deg is not None:
+            vals, names = model.values(0), model.tracer.names
+            for q, i in enumerate(tirs):
+                j = nmla + q
+                n1 = vals[names.index(model.tracer.vector.media[i])]
+                n2 = vals[names.index(f"{model.system.surfaces[i].name}.index")]
+                need = math.degrees(math.asin(min(1.0, n2 / n1))) + t.tir_margin_deg
+                cosv = np.clip(cos_in[..., j], -1.0, 1.0)
+                ex = need - np.degrees(np.arccos(cosv))
+                yield f"tir_{model.system.surfaces[i].name}", j, "tir", ex, ok & (ex > 0), cosv
         margin = t.aperture_margin_mm
-        for j_, i in enumerate(st.apertures):
+        for q, i in enumerate(aps):
+            j = nmla + len(tirs) + q
             ap = model.system.surfaces[i].aperture
             name = f"aperture_{model.system.surfaces[i].name}"
-            h = st.surf[:, :, :, off + j_] - np.array(ap.decenter)
-            dh = st.dsurf[:, :, :, off + j_] if st.derivatives else None
+            h = surf[..., j, :] - np.array(ap.decenter)
             if ap.kind == "circular":
                 rad = np.hypot(h[..., 0], h[..., 1])
-                over = st.ok & (rad > ap.radius - margin)
-
-                def jac(ix, h=h, dh=dh, rad=rad):
-                    u = h[ix] / np.maximum(rad[ix], 1e-300)[..., None]
-                    return np.einsum("...a,...ak->...k", u, dh[ix]) * scale
-
-                yield (name, *_hinge(st, over, (rad - (ap.radius - margin)) * scale, jac))
+                ex = rad - (ap.radius - margin)
+                yield name, j, "radial", ex, ok & (ex > 0), (h, rad)
             else:
                 ex = np.abs(h) - (np.array(ap.half_width) - margin)
-                over = (ex > 0) & st.ok[..., None]
-                yield (name, *_hinge(st, over, ex * scale,
-                                     lambda ix, h=h, dh=dh: np.sign(h[ix])[..., None] * dh[ix] * scale))
+                yield name, j, "axes", ex, (ex > 0) & ok[..., None], h
+
+    def _select(self, model: IniModel):
+        """The trace's ``select``: the recorded hits beyond their limit (their hinge rows
+        are the only ones that use their derivatives)."""
+        nrec = len(self._record(model))
+
+        def select(v):
+            need = np.zeros((len(v.status), nrec), dtype=bool)
+            for _, j, kind, _, over, _ in self._limits(model, v.surf, v.cos_in, v.status == 0):
+                need[:, j] |= over.any(axis=-1) if kind == "axes" else over
+            return need
+
+        return select
+
+    def _recorded(self, st: _Sample):
+        """Hinges on the recorded hits (:meth:`_limits`): rays beyond (½ − margin) of the
+        cell on every MLA surface and pupil rays beyond a clear aperture of the relay or
+        eyepiece less ``aperture_margin_mm`` (the analysis vignettes them there), µm;
+        incidence below the critical angle + margin on surfaces that rely on TIR, °."""
+        w = self.spec.weights
+        um = 1000.0 * w.crosstalk
+        for name, j, kind, ex, over, aux in self._limits(st.model, st.surf, st.cos_in, st.ok):
+            dsj = st.dsurf[:, :, :, j] if st.derivatives else None
+            if kind == "axes":
+                yield name, *_hinge(st, over, ex * um, lambda ix, h=aux, d=dsj: np.sign(h[ix])[..., None] * d[ix] * um)
+            elif kind == "radial":
+                def jac(ix, h=aux[0], rad=aux[1], d=dsj):
+                    u = h[ix] / np.maximum(rad[ix], 1e-300)[..., None]
+                    return np.einsum("...a,...ak->...k", u, d[ix]) * um
+
+                yield name, *_hinge(st, over, ex * um, jac)
+            else:
+                def jac(ix, cosv=aux, j=j):
+                    sin = np.maximum(np.sqrt(1.0 - cosv[ix] ** 2), 1e-12)
+                    return st.dcos[:, :, :, j][ix] / sin[..., None] * DEG * w.tir
+
+                yield name, *_hinge(st, over, ex * w.tir, jac)
 
     def _efl(self, st: _Sample):
         """Relay–eyepiece focal length per CDP state, % from its target (derivatives:
