@@ -287,3 +287,22 @@ def test_schedule_runs_in_one_call_honours_each_stage_and_resumes_bit_identicall
     for r1, r2 in zip(doc["stages"], doc2["stages"], strict=True):
         assert r1["x_end"] == r2["x_end"]
         assert [h["cost"] for h in r1["history"]] == [h["cost"] for h in r2["history"]]
+
+
+def test_trial_points_skip_the_design_file_but_not_its_numbers(freeform_merit):
+    """A trial point's model is built from the packed parameters (no design table
+    written or validated); its merit equals that of the design written at x and
+    re-read, to rounding (the file stores radii, 1/c)."""
+    from lfsim.ini.model import IniModel
+
+    M = freeform_merit
+    x = M.x0 * (1.0 + 2e-3)
+    fast = M._build_model(x)
+    slow = IniModel(M.design_at(x))
+    assert np.max(np.abs(fast.values0 - slow.values0)) <= 1e-12 * np.max(np.abs(slow.values0))
+    assert np.allclose(fast.tl_power, slow.tl_power, rtol=1e-12, atol=0)
+    r_fast = M.residuals(x)
+    M._model = (x.tobytes(), slow)
+    r_slow = M.residuals(x)
+    assert r_fast.size == r_slow.size
+    assert abs(r_fast @ r_fast - r_slow @ r_slow) <= 1e-9 * (r_slow @ r_slow)

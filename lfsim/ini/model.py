@@ -87,9 +87,16 @@ class IniModel:
     wavelength_nm : float, optional
         Default: the design's primary wavelength.
     precision : str
+    values : array, optional
+        The packed parameter vector (``design.tracer().names``) to use instead of
+        the design's own (an optimizer's trial point: nothing is re-validated).
+    tunable_power_diopters : list of float, optional
+        With ``values``: the tunable lens's power per CDP state (instead of the
+        design's given or solved powers).
     """
 
-    def __init__(self, design, wavelength_nm: float | None = None, precision: str = "float64"):
+    def __init__(self, design, wavelength_nm: float | None = None, precision: str = "float64", values=None,
+                 tunable_power_diopters=None):
         if design.ini is None:
             raise DesignError(design.path or "<dict>", "ini", None, "the design has no [ini] section")
         self.design = design
@@ -100,12 +107,16 @@ class IniModel:
         self.tracer = design.tracer(precision)
         self.T = self.tracer.T
         self.arr = self.system.arrays[spec.mla]
-        self.g = float(self.system.object_distance)
+        if values is None:
+            self.values0 = np.asarray(self.system.parameter_values(self.lam), dtype=np.float64)
+        else:
+            self.values0 = np.array(values, dtype=np.float64).reshape(self.tracer.n_params)
+        self._powers = None if tunable_power_diopters is None else [float(p) for p in tunable_power_diopters]
+        self.g = float(self.values0[self.tracer.index[GAP]])
         if not math.isfinite(self.g):
             raise DesignError(self.file, "object.distance", "inf", "the display (object) must be at a finite gap")
-        self.values0 = np.asarray(self.system.parameter_values(self.lam), dtype=np.float64)
         self._nominal = self.tracer.vector.numpy_getter(self.values0.copy())
-        frames = self.tracer.frames_numpy()
+        frames = self.tracer.frames_numpy(self.tracer.params(values=self.values0))
         self.R_vw, self.o_vw = frames[spec.viewing_window]
         self.z_mla_back = float(frames[spec.mla_surfaces[-1]][1][2])
         M, N = self.arr.m, self.arr.n
@@ -297,8 +308,9 @@ class IniModel:
             res = (Tt[:, 0, 0] + Tt[:, 1, 1]) - target * (Tp[:, 0, 0] + Tp[:, 1, 1])
             return res, G0, JG
 
-        if spec.tunable_power_diopters is not None:
-            phi = np.array(spec.tunable_power_diopters) / 1000.0
+        given = self._powers if self._powers is not None else spec.tunable_power_diopters
+        if given is not None:
+            phi = np.array(given) / 1000.0
             _, G0, JG = residual(phi)
         else:
             # Secant iteration (exact in one step when the axis ray crosses the lens centre).

@@ -280,11 +280,31 @@ class IniMerit:
     def model_at(self, x) -> IniModel:
         """The InI model at ``x``; the last one is kept, since a damped least-squares
         step evaluates the residuals at a trial point and then, once accepted, the
-        Jacobian at the same point."""
+        Jacobian at the same point.
+
+        The variables go straight into the packed parameter vector of the start's
+        model (its tracer and kernels are reused; nothing is written or re-validated),
+        except for a lenslet array's pitch, which the model also reads from the
+        array's table (then the design is rebuilt, :meth:`design_at`)."""
         key = np.asarray(x, dtype=np.float64).tobytes()
         if self._model is None or self._model[0] != key:
-            self._model = (key, IniModel(self.design_at(x)))
+            self._model = (key, self._build_model(np.asarray(x, dtype=np.float64)))
         return self._model[1]
+
+    def _build_model(self, x) -> IniModel:
+        arrays = self.design0.system.arrays
+        if any(c.state is None and c.name.split(".")[0] in arrays for c in self.cols):
+            return IniModel(self.design_at(x))
+        m0 = self.model0
+        v = m0.values0.copy()
+        powers = None
+        for c, val in zip(self.cols, x):
+            if c.state is None:
+                v[m0.tracer.index[c.name]] = val
+            else:
+                powers = powers or [1000.0 * p for p in m0.tl_power]
+                powers[c.state] = float(val)
+        return IniModel(self.design0, values=v, tunable_power_diopters=powers)
 
     # ------------------------------------------------------------ pieces
     def _subs(self, model: IniModel):
