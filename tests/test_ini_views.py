@@ -10,8 +10,8 @@ from lfsim.metrics import pupil
 
 
 def test_stacked_views_equal_the_per_view_references(scenes):
-    """Display layout (Eqs. 1-2), paraxial chief and marginal rays, d_v (Eq. 5) and
-    the EFL of several re-linearized views, all at once, equal each view's own
+    """Display layout (Eqs. 1-2), paraxial chief and marginal rays, d_v (Eq. 5), the
+    FOV (Eqs. 7-9) and the EFL of several re-linearized views, all at once, equal each view's own
     ``ei_centers`` / ``paraxial_vw`` / ``state`` to 1e-12 mm."""
     model = IniModel(lfsim.load(scenes / "ini_freeform.toml"))
     names = model.tracer.names
@@ -42,5 +42,7 @@ def test_stacked_views_equal_the_per_view_references(scenes):
             assert np.allclose(ref["d_v"][v][sel], np.mean(w.state(kk).d_v), rtol=1e-13, atol=0)
         efl = -0.5 * (1.0 / w.JG[:, 2, 0] + 1.0 / w.JG[:, 3, 1])
         assert np.allclose(ref["efl"][v], efl, rtol=1e-14, atol=0)
+        for kk in range(nd):
+            assert np.allclose(ref["fov"][v, kk], w.state(kk).fov_deg, rtol=1e-12, atol=0)
     # the views really differ (the test would not notice a stack that ignores them)
     assert np.max(np.abs(ref["display"][0] - ref["display"][2])) > 1e-4

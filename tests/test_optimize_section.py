@@ -128,6 +128,8 @@ BAD = [
     ("[optimize.targets]\nefl_mm = 0.0", "optimize.targets.efl_mm", "nonzero"),
     ("[optimize.targets]\ntir_margin_deg = 95.0", "optimize.targets.tir_margin_deg", "[0, 90)"),
     ("[optimize.targets]\nmin_air_gap = -0.1", "optimize.targets.min_air_gap", ">= 0"),
+    ("[optimize.targets]\nfov_deg = [30.0]", "optimize.targets.fov_deg", "[x, y]"),
+    ("[optimize.targets]\nfov_deg = [30.0, 190.0]", "optimize.targets.fov_deg", "(0, 180)"),
     ("[optimize.targets]\nspot = 1.0", "optimize.targets.spot", "unknown key"),
     ("[optimize.weights]\nspot = -1.0", "optimize.weights.spot", ">= 0"),
     ("[optimize.weights]\nefl = inf", "optimize.weights.efl", "finite"),

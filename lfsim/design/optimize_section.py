@@ -37,6 +37,8 @@ Schema (units mm, degrees, diopters)::
     efl_mm = nan             # eyepiece focal length target (nonzero; signed, an
                              # inverting group has a negative EFL); nan or
                              # absent: keep the starting design's
+    fov_deg = [30.0, 18.0]   # optional: full FOV (x, y) of every CDP state, as `lfsim ini`
+                             # reports it (first-order); absent: off
     min_center_thickness = 0.3    # mm, glass, >= 0
     min_edge_thickness = 0.3      # mm, glass, >= 0
     min_air_gap = 0.1             # mm, >= 0
@@ -50,6 +52,7 @@ Schema (units mm, degrees, diopters)::
     distortion = 1.0
     crosstalk = 1.0
     efl = 10.0
+    fov = 10.0               # per % of the FOV target
     thickness = 1.0
     tir = 1.0
 
@@ -142,6 +145,7 @@ class OptimizeTargets:
     crosstalk_margin: float = 0.02
     aperture_margin_mm: float = 0.0
     efl_mm: float | None = None
+    fov_deg: tuple[float, float] | None = None
     min_center_thickness: float = 0.3
     min_edge_thickness: float = 0.3
     min_air_gap: float = 0.1
@@ -169,6 +173,7 @@ class OptimizeWeights:
     distortion: float = 1.0
     crosstalk: float = 1.0
     efl: float = 10.0
+    fov: float = 10.0
     thickness: float = 1.0
     tir: float = 1.0
 
@@ -339,6 +344,12 @@ def _targets(ctx, tab, p="optimize.targets") -> OptimizeTargets:
             if not v < top:
                 raise ctx.err(f"{p}.{key}", v, allowed)
             kw[key] = v
+    if "fov_deg" in tab:
+        v = tab["fov_deg"]
+        if (not isinstance(v, list) or len(v) != 2 or any(isinstance(a, bool) or not isinstance(a, (int, float))
+                                                           or not 0.0 < a < 180.0 for a in v)):
+            raise ctx.err(f"{p}.fov_deg", v, "expected [x, y], two full field angles in degrees in (0, 180)")
+        kw["fov_deg"] = (float(v[0]), float(v[1]))
     if "efl_mm" in tab:
         v = tab["efl_mm"]
         if isinstance(v, float) and math.isnan(v):

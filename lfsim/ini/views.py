@@ -105,6 +105,36 @@ class StackedViews:
             out.append(np.abs(plus[:, ax] - minus[:, ax]))
         return np.stack(out, axis=-1)
 
+    def fov_deg(self, k: int) -> np.ndarray:
+        """Full FOV (V, 2) in degrees between the edge EI centres' outer edges, x and y
+        (:meth:`IniModel.state`'s ``fov_deg``: Eqs. 7–9 generalized)."""
+        mo = self.model
+        M, N = mo.arr.m, mo.arr.n
+        c = self.c_ref
+        s0 = self.ei_centers(k, mo.m_ref, mo.n_ref)  # (V, 2)
+        pei = self.ei_pitch(k)  # (V, 2)
+        cb = np.broadcast_to(c, s0.shape)
+        z = np.zeros_like(s0)
+        D = mo.depths[k] / 1000.0
+
+        def retinal(st):
+            return st[..., 2:4] - st[..., 0:2] * D
+
+        theta = []
+        for ax in range(2):
+            e = np.eye(2)[ax]
+            hp = 0.5 * pei[:, ax:ax + 1] * e  # (V, 2)
+            ep = self.paraxial_vw(k, s0 + hp, cb, z, per_view=True)
+            em = self.paraxial_vw(k, s0 - hp, cb, z, per_view=True)
+            theta.append(np.abs(retinal(ep)[:, ax] - retinal(em)[:, ax]))
+        r0 = retinal(self.paraxial_vw(k, s0, cb, z, per_view=True))
+        s1 = self.ei_centers(k, mo.m_ref + 1, mo.n_ref + 1)
+        c1 = np.broadcast_to(mo.lenslet_center(mo.m_ref + 1, mo.n_ref + 1), s1.shape)
+        r1 = retinal(self.paraxial_vw(k, s1, c1, z, per_view=True))
+        delta = np.abs(r1 - r0)
+        return np.stack([2.0 * np.degrees(np.arctan(0.5 * (nl - 1) * delta[:, i] + 0.5 * theta[i]))
+                         for i, nl in enumerate((M, N))], axis=-1)
+
     def display_points(self, m, n, k, fields) -> np.ndarray:
         """Display points (V, S, F, 2) of field fractions (F, 2) in the EIs of lenslets
         (m, n) at states k (:func:`lfsim.ini.subsystems.display_points`, per view)."""
@@ -123,8 +153,9 @@ class StackedViews:
         """The first-order references of sub-systems ``subs`` in every view: ``display``
         (V, S, F, 2), ``par_c`` (V, S, F, 2) paraxial retinal tangents of the chief rays,
         ``par_m`` (V, S, F, 4, 2) paraxial VW positions of the four marginal rays, ``d_v``
-        (V, S), ``efl`` (V, n_states). ``display``: the rays' display points when they are
-        given (the traced ones), else the views' own layout."""
+        (V, S), ``efl`` (V, n_states), ``fov`` (V, n_states, 2) in degrees. ``display``:
+        the rays' display points when they are given (the traced ones), else the views'
+        own layout."""
         mo = self.model
         if display is None:
             display = self.display_points(subs.m, subs.n, subs.k, subs.fields)
@@ -146,4 +177,5 @@ class StackedViews:
             d_v[:, sel] = np.mean(self.d_v(kk), axis=-1)[:, None]
         with np.errstate(divide="ignore"):
             efl = -0.5 * (1.0 / self.JG[:, :, 2, 0] + 1.0 / self.JG[:, :, 3, 1])
-        return dict(display=display, par_c=par_c, par_m=par_m, d_v=d_v, efl=efl)
+        fov = np.stack([self.fov_deg(k) for k in range(len(mo.depths))], axis=1)
+        return dict(display=display, par_c=par_c, par_m=par_m, d_v=d_v, efl=efl, fov=fov)

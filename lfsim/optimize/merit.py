@@ -127,6 +127,7 @@ class _Sample:
     dpar_m: np.ndarray | None = None
     dd_v: np.ndarray | None = None
     defl: np.ndarray | None = None
+    dfov: np.ndarray | None = None
     figures: dict = field(default_factory=dict)
 
 
@@ -434,7 +435,7 @@ class IniMerit:
         gw = self._grid_weights(model, subs)
         for name, r, j in self._gd_mean(st, gw):
             rows.add(name, r, j)
-        for block in (self._efl, self._thickness, self._edge_thickness, self._prism_thickness_block):
+        for block in (self._efl, self._fov, self._thickness, self._edge_thickness, self._prism_thickness_block):
             for name, r, j in block(st):
                 rows.add(name, r, j)
         r_all, J_all, details, self.layout = rows.result()
@@ -451,7 +452,7 @@ class IniMerit:
                        rms_spot_mean_arcmin=float(np.mean(rms[spot_ok]) * ARCMIN) if spot_ok.any() else None,
                        gd_mean_deg=float(gw[okc] @ gd[okc] / gw[okc].sum()) if okc.any() else None,
                        rays=self.rays, rays_lost=int(fig["lost"].sum()),
-                       efl_mm=[float(v) for v in ref["efl"]])
+                       efl_mm=[float(v) for v in ref["efl"]], fov_deg=ref["fov"].tolist())
         self.details = details
         return r_all, J_all, details
 
@@ -474,8 +475,8 @@ class IniMerit:
         slope = dirs[..., :2] / dirs[..., 2:3]
         r = slope - pos * (D[..., None] / 1000.0)
         nrec = J.surf.shape[1]
-        cut = {key: v[sl] for key, v in ref.items() if key != "efl"}
-        cut["efl"] = ref["efl"]
+        per_state = ("efl", "fov")  # references per CDP state, not per sub-system
+        cut = {key: (v if key in per_state else v[sl]) for key, v in ref.items()}
         st = _Sample(model=model, x=x, derivatives=derivatives, K=K, subs=part, ref=cut, S=S, F=F, R=R,
                      S_all=len(subs), dense=dense, ok=ok, pos=pos, r=r, surf=J.surf.reshape(S, F, R, nrec, 2),
                      cos_in=J.cos_in.reshape(S, F, R, nrec), nmla=len(self._crosstalk_surfaces(model)),
@@ -498,7 +499,7 @@ class IniMerit:
             st.dpar_c = dref["par_c"][sl] if dref else np.zeros((S, F, 2, K))
             st.dpar_m = dref["par_m"][sl] if dref else np.zeros((S, F, 4, 2, K))
             st.dd_v = dref["d_v"][sl] if dref else np.zeros((S, K))
-            st.defl = dref.get("efl")
+            st.defl, st.dfov = dref.get("efl"), dref.get("fov")
         else:  # no columns: the derivative variants of lfsim.metrics run with K = 0
             st.dr, st.dpos = np.zeros(r.shape + (0,)), np.zeros(pos.shape + (0,))
             st.dpar_c, st.dpar_m, st.dd_v = np.zeros((S, F, 2, 0)), np.zeros((S, F, 4, 2, 0)), np.zeros((S, 0))
@@ -685,6 +686,17 @@ class IniMerit:
         jac = st.defl / tgt[:, None] * 100.0 * w.efl if st.derivatives and st.K else None
         yield "efl", (f - tgt) / tgt * 100.0 * w.efl, jac
 
+    def _fov(self, st: _Sample):
+        """Full FOV per CDP state and axis (first-order model, as `lfsim ini` reports it),
+        % from ``fov_deg`` (derivatives: central differences of the first-order maps)."""
+        t, w = self.spec.targets, self.spec.weights
+        if t.fov_deg is None:
+            return
+        tgt = np.array(t.fov_deg, dtype=np.float64)
+        f = st.ref["fov"]  # (states, 2)
+        jac = st.dfov / tgt[None, :, None] * 100.0 * w.fov if st.derivatives and st.K else None
+        yield "fov", (f - tgt) / tgt * 100.0 * w.fov, jac
+
     def _thickness(self, st: _Sample):
         """Centre thickness of variable glass thicknesses and air gaps below their minimum, µm."""
         m = st.model
@@ -731,8 +743,10 @@ class IniMerit:
     def describe(details: dict) -> str:
         """One line of the evaluation's figures for the run's log."""
         gd, mean = details.get("gd_max_deg"), details.get("gd_mean_deg")
+        fov = details.get("fov_deg")
+        fov = f"; FOV {fov[len(fov) // 2][0]:.2f} x {fov[len(fov) // 2][1]:.2f} deg (middle CDP)" if fov else ""
         return (f"GD max {'undefined' if gd is None else f'{gd:.3f} deg'}, "
-                f"mean {'undefined' if mean is None else f'{mean:.3f} deg'} over the display")
+                f"mean {'undefined' if mean is None else f'{mean:.3f} deg'} over the display{fov}")
 
     # Problem protocol
     def residuals(self, x) -> np.ndarray:
