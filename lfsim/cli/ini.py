@@ -120,7 +120,7 @@ def cmd_optimize(args) -> int:
     from ..optimize.workflow import optimize
 
     design = _load_design(args)
-    if design.optimize is None or not design.optimize.variables:
+    if design.optimize is None or not design.optimize.varies_anything:
         raise InputError(f"{args.design}: optimize.variables = missing: mark the variables in an [optimize] section")
     stages = None
     if args.stages:

@@ -229,6 +229,11 @@ class OptimizeSpec:
         return cls(stages=STAGES if ini else ("full",))
 
     @property
+    def varies_anything(self) -> bool:
+        """The section or one of its scheduled stages names a variable."""
+        return bool(self.variables) or any(st.variables for st in self.schedule or ())
+
+    @property
     def variable_names(self) -> tuple[str, ...]:
         return tuple(v.name for v in self.variables)
 

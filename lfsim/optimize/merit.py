@@ -587,7 +587,7 @@ class IniMerit:
         st.figures.update(pa=pa_f, pa_ok=pa_ok)
         if t.pa_max is not None:
             over = pa_ok & (pa_f > t.pa_max)
-            yield ("pa_max", *_hinge(st, over, (pa_f - t.pa_max) * 10.0 * w.pa, lambda ix: dpa_f[ix] * 10.0 * w.pa))
+            yield ("pa_hinge", *_hinge(st, over, (pa_f - t.pa_max) * 10.0 * w.pa, lambda ix: dpa_f[ix] * 10.0 * w.pa))
 
     def _distortion(self, st: _Sample):
         """Local distortion of each EI beyond its maximum (metrics.distortion: chief rays

@@ -135,7 +135,7 @@ def optimize(design: Design, out_dir, stages=None, iterations: int | None = None
     spec = design.optimize
     if spec is None:
         raise ValueError(f"{design.path}: the design has no [optimize] section")
-    if not spec.variables:
+    if not spec.varies_anything:
         raise ValueError(f"{design.path}: optimize.variables is empty: nothing to vary")
     todo = plans(design, stages, iterations, solver)
     out = Path(out_dir)
@@ -221,7 +221,7 @@ def optimize(design: Design, out_dir, stages=None, iterations: int | None = None
     except ValueError:
         shown = src
     header = [f"{design.name}: optimized from {src.name} by one run of",
-              f"  lfsim optimize {shown} --out {out}",
+              f"  lfsim optimize {shown} --out DIR",
               f"solver {doc['solver']}, stages {', '.join(r['stage'] for r in doc['stages'])}, "
               f"{doc['seconds']:.0f} s"]
     for r in doc["stages"]:
