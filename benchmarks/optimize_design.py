@@ -46,7 +46,7 @@ def lfsim(args, env, log=None) -> tuple[float, float, subprocess.CompletedProces
     """Run ``lfsim ARGS`` in a new process: (wall s, peak RSS GB of that process, result)."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
     t = time.perf_counter()
-    res = subprocess.run([sys.executable, "-m", "lfsim", *args], cwd=ROOT, env=env, text=True,
+    res = subprocess.run([sys.executable, "-m", "lfsim.cli", *args], cwd=ROOT, env=env, text=True,
                          stdout=subprocess.PIPE, stderr=None if log else subprocess.PIPE)
     wall = time.perf_counter() - t
     peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
@@ -90,7 +90,7 @@ def main(argv=None) -> int:
         Path(env["HOME"]).mkdir()
     env.setdefault("PYTHONUNBUFFERED", "1")
     try:
-        wall, peak, _ = lfsim(["optimize", a.design, "--out", str(out), "--json"], env, log=True)
+        wall, peak, _ = lfsim(["optimize", a.design, "--out", str(out)], env, log=True)
         hist = json.loads((out / "history.json").read_text())
         opt = out / hist["optimized_design"]
         an_wall, _, res = lfsim(["analyze", str(opt), "--stride", "1,1", "--no-plots", "--json",

@@ -1,10 +1,11 @@
 """The light-field merit of an InI-HMD design (Section 4) as weighted residuals.
 
 The design variables ``x`` (names from the design's parameter table, plus
-the tunable lens's power per CDP state) are written into the design file's
-table, the design is re-validated and its InI model rebuilt, and one fused
-trace carries every sampled sub-system (lenslet × CDP depth) × field × pupil
-ray (:func:`lfsim.ini.subsystems.trace_rays_jacobian`). The merit is the sum
+the tunable lens's power per CDP state) go into the packed parameter vector
+of the start's InI model, whose first-order maps are re-linearized, and fused
+traces carry every sampled sub-system (lenslet × CDP depth) × field × pupil
+ray (:func:`lfsim.ini.subsystems.trace_rays_jacobian`), in chunks reduced
+straight to residual rows (:class:`Rows`). The merit is the sum
 of squares of the residuals below; each block is scaled so that a residual of
 1 is "one unit of trouble":
 
@@ -22,7 +23,7 @@ gd            Eq. (11) chief-ray error |r − r_par| in degrees (mean part),
               over the whole display: sampled lenslets weighted by the
               lenslets nearest to them)
 pa            Eq. (12) marginal-ray footprint errors |v − v′|/(√2 d_v) (mean
-              part), plus 10 × the excess over the PA target per ray
+              part); ``pa_hinge``: 10 × each field's PA over its target
 distortion    local distortion of each elemental image beyond its target
 crosstalk     marginal and pupil rays beyond (½ − margin) of the pitch on
               every MLA surface, µm
@@ -30,6 +31,7 @@ aperture      pupil rays beyond a clear aperture of the relay or eyepiece
               (less ``aperture_margin_mm``), µm (weighted like crosstalk; the
               analysis vignettes rays beyond the aperture itself)
 efl           relay–eyepiece focal length per CDP state, % from its target
+fov           full FOV per CDP state and axis, % from ``fov_deg``
 thickness     centre thickness of glass / air gaps below their minimum, and
               edge thickness of glass elements at their clear radius, µm
 prism_        a prism's thickness between opposite faces below

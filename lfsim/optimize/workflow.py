@@ -70,6 +70,32 @@ def block_shares(details: dict, layout) -> dict:
     return {k: v / total for k, v in sums.items()} if total > 0 else {k: 0.0 for k in sums}
 
 
+def _release() -> None:
+    """Hand the memory of a finished stage or analysis back: Python's cycles, then the
+    blocks Dr.Jit keeps for reuse (otherwise each phase's peak adds to the next's)."""
+    import gc
+
+    import drjit as dr
+
+    gc.collect()
+    dr.flush_malloc_cache()
+    try:  # glibc keeps freed heap pages mapped unless asked
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
+
+
+def _peak_rss_gb() -> float:
+    """This process's peak resident memory so far (GB; Linux reports kB)."""
+    import resource
+    import sys
+
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / (1e9 if sys.platform == "darwin" else 1e6)
+
+
 def _duration(seconds: float) -> str:
     s = int(round(seconds))
     return f"{s // 60}:{s % 60:02d}"
@@ -210,8 +236,13 @@ def optimize(design: Design, out_dir, stages=None, iterations: int | None = None
                "x_start": [float(v) for v in x0], "x_end": [float(v) for v in res.x],
                "history": res.history, "seconds": round(secs, 2)}
         doc["stages"].append(rec)
+        said = merit.describe(det1)
+        del merit, res, solve, report
+        _release()
+        rec["peak_rss_gb"] = round(_peak_rss_gb(), 3)
         log(f"stage {stage}: merit {rec['merit_start']:.6g} -> {rec['merit_end']:.6g} "
-            f"({res.status}, {res.iterations} iterations, {secs:.1f} s); {merit.describe(det1)}")
+            f"({rec['status']}, {rec['iterations']} iterations, {secs:.1f} s, peak memory so far "
+            f"{rec['peak_rss_gb']:.2f} GB); {said}")
     doc["seconds"] = round(time.perf_counter() - t_all, 2)
     stem = Path(design.path or "design").stem
     path = out / f"{stem}_optimized.toml"
@@ -241,6 +272,7 @@ def optimize(design: Design, out_dir, stages=None, iterations: int | None = None
         from ..design import load
 
         before = analyze(design, out / "before", stride=analyze_stride, plots=True)
+        _release()
         after = analyze(load(path), out / "after", stride=analyze_stride, plots=True)
         doc["before_after"] = compare(before, after, out / "before_after.png")
         doc["before_after_stride"] = list(analyze_stride)
