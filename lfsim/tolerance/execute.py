@@ -136,8 +136,10 @@ def run(job: dict, units: list, batch: int = 8, scheduler: str | None = None, wo
         where = {"mode": "scheduler", "scheduler": scheduler,
                  "workers": len(client.scheduler_info().get("workers", {}))}
     try:
-        job_f = client.scatter(job, broadcast=True)
-        futures = [client.submit(run_units, job_f, chunk, pure=False, retries=2) for chunk in chunks]
+        # The job travels with each task rather than as scattered data: a scattered
+        # value has no recipe, so a worker killed while holding it could cancel every
+        # task that needs it ("already forgotten"); a task of its own is retried.
+        futures = [client.submit(run_units, job, chunk, pure=False, retries=2) for chunk in chunks]
         for fut in as_completed(futures):
             on_records(fut.result())
             fut.release()
