@@ -263,22 +263,24 @@ class IniMerit:
     def bounds(self):
         return (np.array([c.lower for c in self.cols]), np.array([c.upper for c in self.cols]))
 
+    def _powers(self, x):
+        """The tunable lens's power per CDP state (D) at ``x``; None without tunable columns."""
+        if all(c.state is None for c in self.cols):
+            return None
+        powers = [1000.0 * p for p in self.model0.tl_power]
+        for c, v in zip(self.cols, x):
+            if c.state is not None:
+                powers[c.state] = float(v)
+        return powers
+
     def design_at(self, x) -> Design:
         """The design with the variables set to ``x`` (validated like a file)."""
         from ..design.writer import apply_values
 
         x = np.asarray(x, dtype=np.float64)
         values = {c.name: float(v) for c, v in zip(self.cols, x) if c.state is None}
-        powers = None
-        if any(c.state is not None for c in self.cols):
-            model0 = self.model0
-            powers = [1000.0 * p for p in model0.tl_power]
-            for c, v in zip(self.cols, x):
-                if c.state is not None:
-                    powers[c.state] = float(v)
-        raw = apply_values(self.design0.raw, values, tunable_power_diopters=powers)
-        d = Design.from_dict(raw, self.design0.path or "<dict>")
-        return d
+        raw = apply_values(self.design0.raw, values, tunable_power_diopters=self._powers(x))
+        return Design.from_dict(raw, self.design0.path or "<dict>")
 
     def model_at(self, x) -> IniModel:
         """The InI model at ``x``; the last one is kept, since a damped least-squares
@@ -300,14 +302,10 @@ class IniMerit:
             return IniModel(self.design_at(x))
         m0 = self.model0
         v = m0.values0.copy()
-        powers = None
         for c, val in zip(self.cols, x):
             if c.state is None:
                 v[m0.tracer.index[c.name]] = val
-            else:
-                powers = powers or [1000.0 * p for p in m0.tl_power]
-                powers[c.state] = float(val)
-        return IniModel(self.design0, values=v, tunable_power_diopters=powers)
+        return IniModel(self.design0, values=v, tunable_power_diopters=self._powers(x))
 
     # ------------------------------------------------------------ pieces
     def _subs(self, model: IniModel):
