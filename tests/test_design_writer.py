@@ -192,3 +192,16 @@ def test_values_accept_numpy_scalars(scenes):
     raw = lfsim.load(scenes / "cooke_triplet.toml").raw
     out = apply_values(raw, {"L1_front.thickness": np.float64(3.5)})
     assert type(out["surfaces"][0]["thickness"]) is float
+
+
+def test_long_array_with_inline_tables_compacts_in_linear_time():
+    """A variables list of 90 names with inline tables among them (an [optimize]
+    section) used to send the flat-array pattern into exponential backtracking: the
+    writer hung for hours (a regression hangs this test). The flat arrays around it
+    are still put on one line."""
+    names = [f"S{i % 4 + 1}.x{2 * (i % 3)}y{i % 5}" for i in range(80)]
+    variables = names[:40] + [{"name": "R1b.thickness", "min": 1.5, "max": 12.0}] + names[40:]
+    raw = {"optimize": {"variables": variables}, "surfaces": [{"name": "S1", "tilt": [0.0, 5.0, 0.0]}]}
+    text = design_text(raw, ["header"])
+    assert tomllib.loads(text) == raw
+    assert "tilt = [0.0, 5.0, 0.0]" in text

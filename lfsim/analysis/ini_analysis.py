@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..ini.model import IniModel
+from ..ini.package import package as ini_package
 from ..ini.subsystems import Bundle, Subsystems, display_points, sample, trace
 from ..metrics import distortion, footprint, mtf, pupil, spot
 
@@ -251,12 +252,14 @@ def contrast_min(res: dict) -> np.ndarray:
     return grid if refined is None else np.minimum(grid, refined["contrast_min"])
 
 
-def summarize(res: dict) -> dict:
+def summarize(res: dict, package: bool = True) -> dict:
     """The ``metrics.json`` document (the contract in docs/contracts.md plus per-sub-system details).
 
     GD needs the centre field's chief ray and PA a field's four marginal rays;
     where those failed (vignetted, crosstalk) the value is left out of every
     statistic and reported as null, and the failures are counted.
+    ``package``: also the design's mechanical package (:func:`lfsim.ini.package.package`,
+    about 0.1 s; a caller that reads only the summary can leave it out).
     """
     model, subs, spec = res["model"], res["subs"], res["model"].spec
     arcmin = spot.ARCMIN
@@ -322,9 +325,12 @@ def summarize(res: dict) -> dict:
         "rays_traced": int(res["bundle"].status.size),
         "trace_s": round(res["t_trace"], 3), "wall_s": round(res["t_all"], 3),
     }
-    return {"design": model.design.name, "file": model.file, "wavelength_nm": model.lam,
-            "summary": summary, "by_depth": by_depth, "subsystems": subsystems,
-            "mtf_frequencies_cpd": [float(v) for v in res["freqs_cpd"]]}
+    doc = {"design": model.design.name, "file": model.file, "wavelength_nm": model.lam,
+           "summary": summary, "by_depth": by_depth, "subsystems": subsystems,
+           "mtf_frequencies_cpd": [float(v) for v in res["freqs_cpd"]]}
+    if package:
+        doc["package"] = ini_package(model)
+    return doc
 
 
 def analyze(design, out_dir=None, stride=None, symmetry=None, depths_diopters=None,

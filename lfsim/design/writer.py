@@ -206,7 +206,10 @@ def apply_values(raw: dict, values: dict[str, float],
 
 
 #: A flat array as tomli-w writes it, one item a line (strings are single-line).
-_FLAT_ARRAY = re.compile(r"\[\n((?:[ ]+[^\n\[\]{}]*,\n)+)[ ]*\]")
+#: Each item line is indentation, then a non-blank character, then the rest of the line:
+#: no two parts of the pattern can take the same character, so a long array that is
+#: not flat (an inline table on its 80th line) fails in linear time, not exponential.
+_FLAT_ARRAY = re.compile(r"\[\n((?:[ ]+[^\s\[\]{}][^\n\[\]{}]*,\n)+)[ ]*\]")
 
 
 def _compact_arrays(text: str) -> str:

@@ -233,3 +233,45 @@ def _grid(ap, points: int) -> np.ndarray:
     else:
         xy = np.stack([X.ravel(), Y.ravel()], axis=1) * np.array(ap.half_width)
     return xy + np.array(ap.decenter)
+
+
+# ---------------------------------------------------------- glass elements
+def is_glass(system, names, values, i: int) -> bool:
+    """Surface ``i`` refracts into a medium denser than air."""
+    s = system.surfaces[i]
+    return s.interaction in ("refract", "tir") and values[names.index(f"{s.name}.index")] > 1.0001
+
+
+def glass_pairs(system, names, values, last: int) -> list[tuple[int, int, float]]:
+    """(front, back, radius) of each glass element among surfaces ``0 … last − 1``
+    outside a lenslet array: a refracting surface into glass followed by a
+    refracting one, both axial (no ``global_position``), at the larger of their
+    circular clear radii."""
+    surf = system.surfaces
+    out = []
+    for i in range(last - 1):
+        a, b = surf[i], surf[i + 1]
+        if a.array is not None or b.array is not None or a.interaction != "refract":
+            continue
+        if b.interaction != "refract" or not is_glass(system, names, values, i):
+            continue
+        radii = [s.aperture.radius for s in (a, b) if s.aperture is not None and s.aperture.kind == "circular"]
+        if radii and a.global_position is None and b.global_position is None:
+            out.append((i, i + 1, max(radii)))
+    return out
+
+
+def edge_thickness(tracer, values, i: int, j: int, radius: float) -> float:
+    """Axial glass thickness between surfaces i and j at ``radius`` (sags from the
+    tracer's surface model with parameters ``values``); −inf where a sag is undefined."""
+    T, names = tracer.T, tracer.names
+    P, block = tracer.params(values=values), dr.zeros(T.UInt32, 1)
+
+    def z(k):
+        with dr.suspend_grad():
+            zz, _, _, inside = sag(T.Float(radius), T.Float(0.0), tracer.shape(P, k, block))
+        return float(zz[0]) if bool(inside[0]) else math.nan
+
+    thick = float(values[names.index(f"{tracer.system.surfaces[i].name}.thickness")])
+    e = thick - z(i) + z(j)
+    return e if math.isfinite(e) else -math.inf

@@ -49,7 +49,7 @@ def metrics_of(design: Design, reference: IniModel | None = None, subs=None) -> 
 
 
 def _summary(res: dict) -> dict:
-    s = summarize(res)["summary"]
+    s = summarize(res, package=False)["summary"]
     out = {k: s[k] for k in METRICS}
     out["rays_failed"] = s["rays_failed"]
     return out
