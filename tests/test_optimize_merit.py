@@ -306,3 +306,47 @@ def test_trial_points_skip_the_design_file_but_not_its_numbers(freeform_merit):
     r_slow = M.residuals(x)
     assert r_fast.size == r_slow.size
     assert abs(r_fast @ r_fast - r_slow @ r_slow) <= 1e-9 * (r_slow @ r_slow)
+
+
+def test_package_block_jacobian_matches_central_differences(scenes, tmp_path):
+    """The package block (track, boxes, eye relief, clear diameter, tunable footprint) with
+    every limit exceeded, against central differences of its exact residuals; its rows
+    are the excess of lfsim.ini.package's figures over the limits, in µm."""
+    from lfsim.ini.model import IniModel
+    from lfsim.ini.package import package
+
+    d0 = lfsim.load(scenes / "ini_freeform.toml")
+    fig = package(IniModel(d0))
+    box, pbox = fig["bounding_box_mm"], fig["prism_box_mm"]
+    targets = {"track_max_mm": fig["track_mm"] - 2.0, "eye_relief_min_mm": fig["eye_relief_mm"] + 1.0,
+               "box_max_mm": [v - 1.0 for v in box], "prism_box_max_mm": [v - 1.0 for v in pbox],
+               "clear_diameter_max_mm": fig["max_clear_diameter_mm"] - 1.0,
+               "tunable_aperture_mm": fig["tunable_footprint_mm"] - 1.0}
+    d = _design(scenes, tmp_path, ["S4.position_z", "S4.tilt_x", "A1a.curvature", "A2b.thickness", "S3.x2y0"],
+                targets=targets)
+    M = IniMerit(d, d.optimize)
+    x0 = M.x0
+    r, J, det = M.evaluate(x0, dense=True)
+    names = [n for n, _ in M.layout]
+    a = sum(n for name, n in M.layout[:names.index("package")])
+    blk = slice(a, a + dict(M.layout)["package"])
+    res = r[blk] / 1000.0
+    assert res.size == 10
+    # excesses as lfsim.ini.package measures them (mm)
+    np.testing.assert_allclose(res[[0, 7]], [2.0, 1.0], atol=1e-9)
+    np.testing.assert_allclose(res[1:7], 1.0, atol=1e-9)
+    np.testing.assert_allclose(res[8:10], 1.0, atol=1e-9)
+    moved = 0
+    for j in range(len(x0)):
+        h = 1e-5 * max(1.0, abs(x0[j]))
+        xp, xm = x0.copy(), x0.copy()
+        xp[j] += h
+        xm[j] -= h
+        fd = (_dense(M, xp)[blk] - _dense(M, xm)[blk]) / (2 * h)
+        scale = np.abs(fd).max()
+        if M.cols[j].name == "S3.x2y0":  # not a geometric column: left out of the block's derivatives
+            assert np.all(J[blk, j] == 0.0)
+            continue
+        moved += scale > 0
+        np.testing.assert_allclose(J[blk, j], fd, rtol=0, atol=1e-3 * scale + 1e-6, err_msg=M.cols[j].label)
+    assert moved >= 3

@@ -43,6 +43,13 @@ Schema (units mm, degrees, diopters)::
     min_edge_thickness = 0.3      # mm, glass, >= 0
     min_air_gap = 0.1             # mm, >= 0
     min_prism_thickness = 1.0     # mm, >= 0: between opposite prism faces (lfsim.optics.solids)
+    track_max_mm = 150.0          # optional package limits (lfsim.ini.package; absent: off):
+                                  # the central chief ray's unfolded length, display → window
+    box_max_mm = [50.0, 50.0, 160.0]   # extents (x, y, z) of the whole optics, global frame
+    prism_box_max_mm = [40.0, 40.0, 40.0]  # extents (x, y, z) of the prism's faces
+    eye_relief_min_mm = 18.0      # window centre → nearest ray on the last surface
+    clear_diameter_max_mm = 25.4  # the relay lenses' clear diameters
+    tunable_aperture_mm = 10.0    # rays through the tunable lens within this diameter
     tir_margin_deg = 1.0          # TIR surfaces: incidence at least this far beyond
                                   # the critical angle, in [0, 90)
     [optimize.weights]       # all optional, finite and >= 0
@@ -55,6 +62,7 @@ Schema (units mm, degrees, diopters)::
     fov = 10.0               # per % of the FOV target
     thickness = 1.0
     tir = 1.0
+    package = 1.0            # per µm beyond a package limit
 
 A schedule instead of ``stages = [...]``: ``[[optimize.stages]]`` tables run
 in the order written, each from the design the one before it ended with; every
@@ -151,6 +159,19 @@ class OptimizeTargets:
     min_air_gap: float = 0.1
     min_prism_thickness: float = 1.0
     tir_margin_deg: float = 1.0
+    track_max_mm: float | None = None
+    box_max_mm: tuple[float, float, float] | None = None
+    prism_box_max_mm: tuple[float, float, float] | None = None
+    eye_relief_min_mm: float | None = None
+    clear_diameter_max_mm: float | None = None
+    tunable_aperture_mm: float | None = None
+
+    @property
+    def package_limits(self) -> bool:
+        """Any package limit set (the ``package`` merit block is on)."""
+        return any(v is not None for v in (self.track_max_mm, self.box_max_mm, self.prism_box_max_mm,
+                                           self.eye_relief_min_mm, self.clear_diameter_max_mm,
+                                           self.tunable_aperture_mm))
 
     def resolve(self, ini) -> OptimizeTargets:
         """A copy with ``gd_max_deg`` / ``pa_max`` taken from an :class:`IniSpec` where unset."""
@@ -176,6 +197,7 @@ class OptimizeWeights:
     fov: float = 10.0
     thickness: float = 1.0
     tir: float = 1.0
+    package: float = 1.0
 
 
 TARGET_DEFAULTS = OptimizeTargets()
@@ -368,6 +390,17 @@ def _targets(ctx, tab, p="optimize.targets") -> OptimizeTargets:
                 "aperture_margin_mm"):
         if key in tab:
             kw[key] = ctx.number(tab, key, p, nonneg=True)
+    for key in ("track_max_mm", "eye_relief_min_mm", "clear_diameter_max_mm", "tunable_aperture_mm"):
+        if key in tab:
+            kw[key] = ctx.number(tab, key, p, positive=True)
+    for key in ("box_max_mm", "prism_box_max_mm"):
+        if key in tab:
+            v = tab[key]
+            if (not isinstance(v, list) or len(v) != 3
+                    or any(isinstance(a, bool) or not isinstance(a, (int, float)) or not 0.0 < a < math.inf
+                           for a in v)):
+                raise ctx.err(f"{p}.{key}", v, "expected [x, y, z], three positive extents in mm")
+            kw[key] = tuple(float(a) for a in v)
     return OptimizeTargets(**kw)
 
 

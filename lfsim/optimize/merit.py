@@ -34,6 +34,9 @@ efl           relay–eyepiece focal length per CDP state, % from its target
 fov           full FOV per CDP state and axis, % from ``fov_deg``
 thickness     centre thickness of glass / air gaps below their minimum, and
               edge thickness of glass elements at their clear radius, µm
+package       the mechanical package (:mod:`lfsim.ini.package`) beyond its limits:
+              track, extents of the optics and of the prism, eye relief, the
+              relay's clear diameters, the rays through the tunable lens, µm
 prism_        a prism's thickness between opposite faces below
 thickness     ``min_prism_thickness`` at the faces' aperture grids, µm
               (:mod:`lfsim.optics.solids`)
@@ -48,6 +51,9 @@ and the EFL use the current design's first-order model, whose own change
 (the display layout, the paraxial chief and marginal rays, d_v, the EFL) is
 differentiated by central differences of the first-order maps; the prism
 thickness by central differences of the geometry:
+the package figures by forward differences over the variables that move or
+bend a surface (thicknesses, positions, tilts, curvatures), and only while a
+package limit is exceeded;
 the residuals themselves are always exact, so a damped least-squares step
 is accepted only when the true merit falls.
 """
@@ -74,6 +80,9 @@ LOST = 10.0  # residual of a lost ray (arcmin-equivalent)
 MERIT_RAY_COPIES = 400_000
 PRISM_POINTS = 9  # sample points per axis of a prism face's clear aperture (thickness)
 DEG = 180.0 / math.pi
+#: Parameter kinds that move or bend a surface: the package figures' variables.
+_GEOMETRIC = {"thickness", "position_x", "position_y", "position_z", "tilt_x", "tilt_y", "tilt_z",
+              "decenter_x", "decenter_y", "curvature"}
 
 
 @dataclass
@@ -435,7 +444,8 @@ class IniMerit:
         gw = self._grid_weights(model, subs)
         for name, r, j in self._gd_mean(st, gw):
             rows.add(name, r, j)
-        for block in (self._efl, self._fov, self._thickness, self._edge_thickness, self._prism_thickness_block):
+        for block in (self._efl, self._fov, self._thickness, self._edge_thickness, self._prism_thickness_block,
+                      self._package):
             for name, r, j in block(st):
                 rows.add(name, r, j)
         r_all, J_all, details, self.layout = rows.result()
@@ -738,6 +748,53 @@ class IniMerit:
                 jac[:, geo] = np.where(over[:, None] & np.isfinite(d_th.T), -d_th.T, 0.0)
             jac *= 1000.0 * w.thickness
         yield "prism_thickness", np.where(over, t.min_prism_thickness - th, 0.0) * 1000.0 * w.thickness, jac
+
+    @staticmethod
+    def _package_excess(fig: dict, t) -> np.ndarray:
+        """Each package limit's excess (mm, >= 0 inside the limit is 0): track, the box and
+        the prism box per axis, eye relief, the relay's largest clear diameter, the
+        tunable lens's footprint; a figure that cannot be measured (no ray reached its
+        surface) counts as 0 here: the lost-ray block already carries it."""
+        def over(v, lim, sign=1.0):
+            return 0.0 if v is None or lim is None else max(0.0, sign * (v - lim))
+
+        box, pbox = fig["bounding_box_mm"], fig["prism_box_mm"]
+        out = [over(fig["track_mm"], t.track_max_mm)]
+        out += [over(None if box is None else box[a], None if t.box_max_mm is None else t.box_max_mm[a])
+                for a in range(3)]
+        out += [over(None if pbox is None else pbox[a],
+                     None if t.prism_box_max_mm is None else t.prism_box_max_mm[a]) for a in range(3)]
+        out.append(over(fig["eye_relief_mm"], t.eye_relief_min_mm, -1.0))
+        out.append(over(fig["max_clear_diameter_mm"], t.clear_diameter_max_mm))
+        out.append(over(fig["tunable_footprint_mm"], t.tunable_aperture_mm))
+        return np.array(out)
+
+    def _package(self, st: _Sample):
+        """Package limits (:mod:`lfsim.ini.package`) exceeded, µm: track, the optics' and the
+        prism's extents, eye relief, the relay's clear diameters, the tunable lens's
+        footprint (derivatives: forward differences of the package figures over the
+        geometric variables, computed only while a limit is exceeded)."""
+        from ..ini.package import package
+
+        t, w = self.spec.targets, self.spec.weights
+        if not t.package_limits:
+            return
+        um = 1000.0 * w.package
+        e0 = self._package_excess(package(st.model), t)
+        jac = None
+        if st.derivatives:
+            jac = np.zeros((e0.size, st.K))
+            active = e0 > 0
+            geo = [j_ for j_, c in enumerate(self.cols) if c.state is None and c.name.split(".")[-1] in _GEOMETRIC]
+            if active.any():
+                for j_ in geo:
+                    h = 1e-6 * max(1.0, abs(st.x[j_]))
+                    xp = st.x.copy()
+                    xp[j_] += h
+                    ep = self._package_excess(package(self._build_model(xp)), t)
+                    jac[:, j_] = np.where(active, (ep - e0) / h, 0.0)
+            jac *= um
+        yield "package", e0 * um, jac
 
     @staticmethod
     def describe(details: dict) -> str:
