@@ -131,6 +131,11 @@ BAD = [
     ("[optimize.targets]\nfov_deg = [30.0]", "optimize.targets.fov_deg", "[x, y]"),
     ("[optimize.targets]\nfov_deg = [30.0, 190.0]", "optimize.targets.fov_deg", "(0, 180)"),
     ("[optimize.targets]\nspot = 1.0", "optimize.targets.spot", "unknown key"),
+    ("[optimize.targets]\ntrack_max_mm = -150.0", "optimize.targets.track_max_mm", "> 0"),
+    ("[optimize.targets]\neye_relief_min_mm = 0.0", "optimize.targets.eye_relief_min_mm", "> 0"),
+    ("[optimize.targets]\nbox_max_mm = [50.0, 50.0]", "optimize.targets.box_max_mm", "[x, y, z]"),
+    ("[optimize.targets]\nprism_box_max_mm = [40.0, 0.0, 40.0]", "optimize.targets.prism_box_max_mm", "positive"),
+    ('[optimize.targets]\ntunable_aperture_mm = "10"', "optimize.targets.tunable_aperture_mm", "number"),
     ("[optimize.weights]\nspot = -1.0", "optimize.weights.spot", ">= 0"),
     ("[optimize.weights]\nefl = inf", "optimize.weights.efl", "finite"),
     ('[optimize.weights]\ngd = "high"', "optimize.weights.gd", "number"),
@@ -251,3 +256,16 @@ def test_bad_schedule_entry_exits_2_naming_the_key(freeform_text, tmp_path, caps
     p.write_text(freeform_text + "\n[optimize]\n" + STAGE_HEAD + '[[optimize.stages]]\nname = "a"\n')
     assert main(["optimize", str(p), "--out", str(tmp_path / "o"), "--stages", "b"]) == 2
     assert "--stages" in capsys.readouterr().err and not (tmp_path / "o").exists()
+
+
+def test_package_limits_parse(make_design, freeform_text):
+    d = make_design(freeform_text + "\n[optimize]\n[optimize.targets]\ntrack_max_mm = 150\n"
+                    "box_max_mm = [50, 50.0, 160]\nprism_box_max_mm = [40.0, 40.0, 40.0]\n"
+                    "eye_relief_min_mm = 18.0\nclear_diameter_max_mm = 25.4\ntunable_aperture_mm = 10.0\n"
+                    "[optimize.weights]\npackage = 3.0\n")
+    t = d.optimize.targets
+    assert (t.track_max_mm, t.box_max_mm, t.prism_box_max_mm) == (150.0, (50.0, 50.0, 160.0), (40.0, 40.0, 40.0))
+    assert (t.eye_relief_min_mm, t.clear_diameter_max_mm, t.tunable_aperture_mm) == (18.0, 25.4, 10.0)
+    assert t.package_limits and d.optimize.weights.package == 3.0
+    from lfsim.design.optimize_section import OptimizeTargets
+    assert not OptimizeTargets().package_limits
