@@ -183,5 +183,5 @@ def add_flags(parser, memory: bool = True) -> None:
                         help=f"refuse a run estimated to take longer (default {DEFAULT_MAX_HOURS:g}; inf: no limit)")
     if memory:
         parser.add_argument("--max-memory-gb", type=float, metavar="GB",
-                            help=f"refuse a run estimated to need more memory (default {MEMORY_SHARE:.0%} of "
+                            help=f"refuse a run estimated to need more memory (default {100 * MEMORY_SHARE:.0f}%% of "
                                  "this machine's memory; inf: no limit)")

@@ -1,5 +1,6 @@
 """The lfsim command: trace, first-order, layout; exit codes and outputs."""
 
+import argparse
 import json
 
 import numpy as np
@@ -277,3 +278,15 @@ def test_human_output_has_units_and_no_python_reprs(scenes, tmp_path, capsys):
     assert set(IniFirstOrder.UNITS) == {f for f in IniFirstOrder.__dataclass_fields__}
     assert main(["layout", str(scenes / "cooke_triplet.toml"), "--out", str(tmp_path / "lay")]) == 0
     assert "field 14°: RMS spot" in capsys.readouterr().out
+
+
+def test_every_verb_prints_its_help():
+    """`lfsim VERB --help` formats for every verb (a bare '%' in a help string made
+    argparse raise instead of printing the help of five verbs)."""
+    from lfsim.cli import build_parser
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    for name, sp in sub.choices.items():
+        assert f"usage: lfsim {name}" in sp.format_help(), name
+    assert "usage: lfsim" in parser.format_help()
