@@ -288,3 +288,21 @@ def test_metric_derivatives_match_central_differences():
             p = distortion.local_distortion(rc + t * drc[..., k], pc + t * dpc[..., k])
             return (p - distortion.local_distortion(rc - t * drc[..., k], pc - t * dpc[..., k])) / (2 * t)
         _matches_central_difference(dld[..., k], d_ld, h, 1e-6, 1e-9, "local distortion")
+
+
+def test_diffraction_mtf_of_a_pupil_sliver_is_zero_not_an_error():
+    """Rays left on one line of the stop (an aperture edge vignettes all but one row)
+    make the affine pupil map singular: the beam gets MTF 0, the others are unchanged."""
+    from lfsim.metrics.mtf import diffraction_mtf
+    from lfsim.metrics.pupil import mtf_grid
+
+    n = 8
+    rho = mtf_grid(n)
+    pupil = np.stack([rho * 0.5, rho * 0.5])  # two beams, 1 mm square pupils
+    ok = np.ones((2, n * n), dtype=bool)
+    ok[1] = np.isclose(rho[:, 1], rho[0, 1])  # beam 1: a single row of the stop
+    freqs = np.array([100.0, 500.0])  # cycles/rad
+    out = diffraction_mtf(rho, pupil, np.zeros((2, n * n)), ok, 550.0, freqs)
+    assert np.all(out[1] == 0.0)
+    # beam 0: the diffraction-limited square pupil, 1 - nu*lambda/w
+    np.testing.assert_allclose(out[0], (1.0 - freqs * 550e-6 / 1.0)[:, None].repeat(2, 1), atol=1e-9)

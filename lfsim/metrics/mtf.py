@@ -127,9 +127,11 @@ def affine_fit(rho: np.ndarray, pupil: np.ndarray, ok: np.ndarray) -> np.ndarray
         A[full] = np.swapaxes(coef[:, :2, :], 1, 2)
     for j in np.flatnonzero(~full):
         sel = ok[j]
-        if sel.sum() >= 3:
+        if sel.sum() >= 3 and np.linalg.matrix_rank(X[sel]) == 3:
             coef, *_ = np.linalg.lstsq(X[sel], pupil[j][sel], rcond=None)
             A[j] = coef[:2].T
+        else:  # the rays left lie on one line of the stop: no 2-D map (singular)
+            A[j] = 0.0
     return A
 
 
@@ -175,7 +177,9 @@ def diffraction_mtf(rho: np.ndarray, pupil: np.ndarray, opd_mm: np.ndarray, ok: 
         norm = np.sum(okc, axis=-1).astype(np.float64)
         ac = np.fft.fftshift(ac, axes=(-2, -1)) / np.where(norm > 0, norm, 1.0)[:, None, None]
         for j in range(a1 - a0):
-            if okc[j].sum() < 3:
+            # Fewer than 3 rays, or rays on one line (an aperture's edge leaves a sliver of
+            # the pupil): the affine map is singular; such a beam is left at MTF 0.
+            if okc[j].sum() < 3 or not np.linalg.cond(A_all[a0 + j]) < 1e12:
                 continue
             Ainv = np.linalg.inv(A_all[a0 + j])
             for ax in range(2):
