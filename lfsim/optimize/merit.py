@@ -51,7 +51,7 @@ and the EFL use the current design's first-order model, whose own change
 (the display layout, the paraxial chief and marginal rays, d_v, the EFL) is
 differentiated by central differences of the first-order maps; the prism
 thickness by central differences of the geometry:
-the package figures by forward differences over the variables that move or
+the package figures by central differences over the variables that move or
 bend a surface (thicknesses, positions, tilts, curvatures), and only while a
 package limit is exceeded;
 the residuals themselves are always exact, so a damped least-squares step
@@ -772,7 +772,7 @@ class IniMerit:
     def _package(self, st: _Sample):
         """Package limits (:mod:`lfsim.ini.package`) exceeded, µm: track, the optics' and the
         prism's extents, eye relief, the relay's clear diameters, the tunable lens's
-        footprint (derivatives: forward differences of the package figures over the
+        footprint (derivatives: central differences of the package figures over the
         geometric variables, computed only while a limit is exceeded)."""
         from ..ini.package import package
 
@@ -788,11 +788,13 @@ class IniMerit:
             geo = [j_ for j_, c in enumerate(self.cols) if c.state is None and c.name.split(".")[-1] in _GEOMETRIC]
             if active.any():
                 for j_ in geo:
-                    h = 1e-6 * max(1.0, abs(st.x[j_]))
-                    xp = st.x.copy()
+                    h = 1e-5 * max(1.0, abs(st.x[j_]))
+                    xp, xm = st.x.copy(), st.x.copy()
                     xp[j_] += h
+                    xm[j_] -= h
                     ep = self._package_excess(package(self._build_model(xp)), t)
-                    jac[:, j_] = np.where(active, (ep - e0) / h, 0.0)
+                    em = self._package_excess(package(self._build_model(xm)), t)
+                    jac[:, j_] = np.where(active, (ep - em) / (2.0 * h), 0.0)
             jac *= um
         yield "package", e0 * um, jac
 
