@@ -22,9 +22,14 @@ def cmd_focal_stack(args) -> int:
     if not (math.isfinite(args.tessellation) and args.tessellation > 0):
         raise InputError(f"--tessellation = {args.tessellation!r}: must be > 0")
     res = _int_pair(args.resolution, "--resolution") if args.resolution else None
+    if args.wavelength_nm is not None and not (math.isfinite(args.wavelength_nm) and 380 <= args.wavelength_nm <= 780):
+        raise InputError(f"--wavelength-nm = {args.wavelength_nm!r}: must lie in 380..780 nm")
+    if args.wavelength_samples < 1:
+        raise InputError(f"--wavelength-samples = {args.wavelength_samples}: must be >= 1")
     spec = FocalStackSpec(focus_mm=[float(f) for f in focus], cdp_mm=cdp, pupil_diameter_mm=float(pupil),
                           spp=args.spp, resolution=res, seed=args.seed, eye_model=args.eye,
-                          mla_cells=args.mla_cells, optics=args.optics, tessellation=args.tessellation)
+                          mla_cells=args.mla_cells, optics=args.optics, tessellation=args.tessellation,
+                          wavelength_nm=args.wavelength_nm, wavelength_samples=args.wavelength_samples)
     quiet = args.json  # progress: a bar on a terminal, periodic lines in a log
     log = (lambda *a, **k: None) if args.json else (lambda msg: print(msg, file=sys.stderr))
     doc, _ = focal_stack(design, content, args.out, spec, progress=not quiet, log=log)
@@ -188,6 +193,11 @@ def register(sub) -> None:
     fs.add_argument("--optics", choices=("analytic", "mesh"), default="analytic",
                     help="analytic: eye rays traced through the design inside the sensor (exact, default); "
                     "mesh: the optics as Mitsuba meshes, path-traced")
+    fs.add_argument("--wavelength-nm", type=float,
+                    help="render every channel at this one wavelength, nm (default: spectral, the display "
+                         "primaries' spectra; the mesh optics are monochrome at the design's primary)")
+    fs.add_argument("--wavelength-samples", type=int, default=4,
+                    help="wavelength nodes per display primary of a spectral render (default 4)")
     fs.add_argument("--tessellation", type=float, default=1.0,
                     help="mesh density as a multiple of the defaults (--optics mesh; default 1)")
     fs.add_argument("--out", default="renders/focal_stack", help="output directory (default renders/focal_stack)")

@@ -8,7 +8,10 @@ this is the reference the mesh path is measured against. Rays that the real
 optics vignette (clear apertures, an aperture array, a failed TIR) carry
 weight 0; by default a ray that crosses between lenslet cells inside the MLA
 goes on through the neighbouring lenslet (crosstalk, see ``cells``).
-RGB renders use one wavelength (the design's primary) for every channel.
+Spectral renders (:mod:`.spectra`) give the tracer one parameter block per
+wavelength node, the glass indices at that wavelength, and each ray is traced
+with its node's block; a monochrome render has one block (by default the
+design's primary wavelength).
 """
 
 from __future__ import annotations
@@ -39,7 +42,8 @@ class ReverseOptics:
         as if the cells were baffled (an ideal aperture array).
     """
 
-    def __init__(self, model, k: int = 0, precision: str = "float32", cells: str = "per_surface"):
+    def __init__(self, model, k: int = 0, precision: str = "float32", cells: str = "per_surface",
+                 wavelengths=None):
         self.model = model
         self.cells = cells
         spec, system = model.spec, model.system
@@ -53,14 +57,19 @@ class ReverseOptics:
                                       last=spec.viewing_window - 1, powers=powers)
         self.tracer = SequentialTracer(self.system, precision)
         self.T = self.tracer.T
-        self.wavelength_nm = model.lam
+        from .spectra import monochrome
+
+        #: Wavelength nodes of the pass (:class:`lfsim.render.spectra.Wavelengths`): one parameter block each.
+        self.wavelengths = wavelengths if wavelengths is not None else monochrome(model.lam)[0]
+        self.wavelength_nm = self.wavelengths.nm[0] if self.wavelengths.count == 1 else model.lam
         self.R_vw = np.asarray(model.R_vw, dtype=np.float64)
         self.o_vw = np.asarray(model.o_vw, dtype=np.float64)
         self._P = None
 
     def params(self):
         if self._P is None:
-            self._P = self.tracer.params(self.wavelength_nm)
+            self._P = self.tracer.params(values=np.concatenate(
+                [self.tracer.vector.values(v) for v in self.wavelengths.nm]))
         return self._P
 
     def to_global(self, o_local, d_local):
@@ -69,24 +78,29 @@ class ReverseOptics:
         R = T.Matrix3(*(c(v) for v in self.R_vw.ravel()))
         return T.Array3(R @ T.Array3(o_local)) + T.Array3(*(c(v) for v in self.o_vw)), R @ T.Array3(d_local)
 
-    def to_display(self, o_local, d_local):
+    def to_display(self, o_local, d_local, block=None):
         """Trace eye rays (viewing-window frame, heading −z) back to the display.
 
+        ``block``: each ray's wavelength node (UInt32; default node 0).
         Returns ``(p, d, valid)``: the hit on the display plane and the
         direction there (global frame, Dr.Jit) and whether the ray got
         through every surface.
         """
         o, d = self.to_global(o_local, d_local)
-        out = self.tracer.trace(self.params(), RayState(o, d), cells=self.cells)
+        if block is not None:
+            block = self.T.UInt32(block)
+        out = self.tracer.trace(self.params(), RayState(o, d), block=block, cells=self.cells)
         return out.p, out.d, out.status == 0
 
-    def to_display_numpy(self, o_local: np.ndarray, d_local: np.ndarray):
-        """:meth:`to_display` for numpy (N, 3) arrays; numpy results."""
+    def to_display_numpy(self, o_local: np.ndarray, d_local: np.ndarray, block=None):
+        """:meth:`to_display` for numpy (N, 3) arrays (``block``: numpy node indices); numpy results."""
         T = self.T
         o = backend.from_numpy(T.Float, *np.asarray(o_local, dtype=T.np_dtype).T)
         d = backend.from_numpy(T.Float, *np.asarray(d_local, dtype=T.np_dtype).T)
+        if block is not None:
+            block = T.UInt32(np.broadcast_to(np.asarray(block, dtype=np.uint32), (len(o_local),)).copy())
         with dr.suspend_grad():
-            p, dd, ok = self.to_display(T.Array3(*o), T.Array3(*d))
+            p, dd, ok = self.to_display(T.Array3(*o), T.Array3(*d), block)
             dr.eval(p, dd, ok)
         return (np.stack([np.asarray(p[i], dtype=np.float64) for i in range(3)], axis=1),
                 np.stack([np.asarray(dd[i], dtype=np.float64) for i in range(3)], axis=1),

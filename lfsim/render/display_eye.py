@@ -48,24 +48,34 @@ def _sensor_class(mi):
         def __init__(self, props):
             eye = {"type": "lfsim_eye"}
             for name in ("model", "pupil_diameter", "focus_distance", "fov_x", "fov_y", "mapping",
-                         "wavelength_nm", "focus_surface", "accommodation"):
+                         "wavelength_nm", "focus_surface", "accommodation", "wavelengths",
+                         "shutter_open", "shutter_close"):
                 if name in props:
                     eye[name] = props[name]
-            eye["film"] = {"type": "hdrfilm", "width": 2, "height": 2}
             key = props["optics"]
             if key not in _OPTICS:
                 raise ValueError(f"lfsim_display_eye: optics = {key!r}: no such optics attached")
             self.optics = _OPTICS[key]
             super().__init__(props)
+            # The inner eye maps film samples to visual angles: it needs this film's size and
+            # crop window (a cropped render is a window of the full image, not all of it).
+            film = self.film()
+            (w, h), (cw, ch), (ox, oy) = film.size(), film.crop_size(), film.crop_offset()
+            eye["film"] = {"type": "hdrfilm", "width": int(w), "height": int(h), "crop_offset_x": int(ox),
+                           "crop_offset_y": int(oy), "crop_width": int(cw), "crop_height": int(ch)}
             self.eye = mi.load_dict(eye)
             self.m_needs_sample_3 = True
+            n_eye = 1 if self.eye.waves is None else self.eye.waves.count
+            if n_eye != self.optics.wavelengths.count:
+                raise ValueError(f"lfsim_display_eye: the eye has {n_eye} wavelength node(s), the optics "
+                                 f"{self.optics.wavelengths.count}: build both from one Wavelengths")
 
         def _sample(self, time, sample1, sample2, sample3, active):
             ray, weight = self.eye.sample_ray(time, sample1, sample2, sample3, active)
             T = self.optics.T
             o = T.Array3(ray.o.x, ray.o.y, ray.o.z)
             d = T.Array3(ray.d.x, ray.d.y, ray.d.z)
-            p, dd, ok = self.optics.to_display(o, d)
+            p, dd, ok = self.optics.to_display(o, d, block=self.eye.node(time))
             ok = ok & (dd.z < 0)
             start = p - LAUNCH_GAP * dd
             out = mi.Ray3f(mi.Point3f(start.x, start.y, start.z),

@@ -66,7 +66,9 @@ Plugin properties: ``to_world``, ``film``, ``sampler``, ``model``
 ``mapping`` ("angular" | "tangent"), ``focus_surface`` ("sphere" | "plane",
 ideal only), ``accommodation`` (D, arizona only; default: solved from
 ``focus_distance`` with :func:`solve_accommodation`), ``wavelength_nm``
-(default 550; arizona media dispersion, ignored by the ideal eye).
+(default 550; arizona media dispersion, ignored by the ideal eye), ``wavelengths``
+(spectral rendering, :mod:`lfsim.render.spectra`: comma-separated node wavelengths, each
+ray picks one from its wavelength sample; the Arizona eye traces it there).
 """
 
 from __future__ import annotations
@@ -208,6 +210,9 @@ def _sensor_class(mi):
             self._focus = op(self.focus) if math.isfinite(self.focus) else None
             self.m_needs_sample_3 = True
             self.accommodation = None
+            from .spectra import Wavelengths
+
+            self.waves = Wavelengths.from_props(props)
             if self.model == "arizona":
                 self._init_arizona(p)
 
@@ -235,14 +240,24 @@ def _sensor_class(mi):
             # Packed per-field rows: retina r, reverse-frame z of the landing point,
             # exit-pupil disk centre (along the landing direction) and radius.
             z_lp = fo.z_lens_posterior
+            # Spectral: the sampled disk 1% larger (its weight, the area ratio, with it), so
+            # that it holds the real exit pupil at every wavelength node.
+            grow = 1.0 if self.waves is None else 1.01
             cols = np.stack([table.r, z_lp - table.z, table.h_xp - pupil.offset * pupil.rho,
-                             pupil.k * pupil.rho, pupil.k ** 2], axis=1)
+                             grow * pupil.k * pupil.rho, (grow * pupil.k) ** 2], axis=1)
             self.table_data = mi.Float(cols.ravel().astype(np.float32))
             dr.make_opaque(self.table_data)
             self.z_xp_rev = dr.opaque(mi.Float, float(z_lp - table.z_xp))
             self.z_lp_eye = dr.opaque(mi.Float, float(z_lp - eye_origin_depth(lam)))
             self.tracer = SequentialTracer(arizona_reverse_system(self.accommodation, iris), "float32")
-            self.P = self.tracer.params(lam)
+            if self.waves is None:
+                self.P = self.tracer.params(lam)
+            else:
+                # One parameter block per wavelength node (ocular media dispersion); the
+                # retina, its pixel mapping and the exit-pupil disk stay the reference
+                # wavelength's: the retina does not move with colour, the image does.
+                self.P = self.tracer.params(values=np.concatenate(
+                    [self.tracer.vector.values(v) for v in self.waves.nm]))
 
         # -------------------------------------------------------- film → angles
         def _tangents(self, s2, du=0.0, dv=0.0):
@@ -306,7 +321,22 @@ def _sensor_class(mi):
                 out.append(dr.fma(f, b - a, a))
             return out
 
-        def _sample_arizona(self, s2, s3, differentials):
+        def node(self, time):
+            """Wavelength node (UInt32) of each ray (0 when monochrome).
+
+            Mitsuba's RGB integrators pass no wavelength sample (``sample1`` is 0), but they
+            draw a time sample when the shutter is open for a while: a spectral eye opens
+            it over [0, 1) (:meth:`EyeSpec.sensor_dict`; the scene is static, so time is
+            free), and the time is the ray's wavelength sample.
+            """
+            from .spectra import node_index
+
+            if self.waves is None:
+                return node_index(mi, time, 1)
+            u = (time - self.shutter_open()) * (1.0 / max(self.shutter_open_time(), 1e-30))
+            return node_index(mi, u, self.waves.count)
+
+        def _sample_arizona(self, s2, s3, differentials, j):
             from ..optics.tracer import RayState
 
             T = self.tracer.T
@@ -330,7 +360,8 @@ def _sensor_class(mi):
             direction = T.Array3(ex - qx, ey - qy, self.z_xp_rev - zq)
             n = dr.width(origin)
             out = self.tracer.trace(self.P, RayState(origin, direction),
-                                    block=dr.zeros(T.UInt32, n), clip=True)
+                                    block=dr.zeros(T.UInt32, n) if self.waves is None else T.UInt32(j),
+                                    clip=True)
             ok = (out.status == 0) & (out.d.z > 0.0)
             chief = dr.normalize(mi.Vector3f(tx, ty, -1.0))
             o = mi.Point3f(dr.select(ok, -out.p.x, 0.0), dr.select(ok, out.p.y, 0.0),
@@ -349,10 +380,11 @@ def _sensor_class(mi):
 
         # --------------------------------------------------------- interface
         def _sample(self, time, sample1, s2, s3, active, differentials):
+            j = self.node(time)
             if self.model == "ideal":
                 o, d, w, ok, diffs = self._sample_ideal(s2, s3, differentials)
             else:
-                o, d, w, ok, diffs = self._sample_arizona(s2, s3, differentials)
+                o, d, w, ok, diffs = self._sample_arizona(s2, s3, differentials, j)
             ok = ok & active
             to_world = self.m_to_world
             wavelengths = dr.zeros(mi.Color0f) if not mi.is_spectral else None
@@ -435,6 +467,11 @@ class EyeSpec:
         Ideal eye only.
     rfilter : str
         Mitsuba reconstruction filter of the film (default "box").
+    wavelengths : lfsim.render.spectra.Wavelengths or None
+        Spectral rendering: the wavelength nodes the rays are spread over (one render
+        pass; None: ``wavelength_nm``). The Arizona eye traces each ray at its node;
+        ``wavelength_nm`` stays the reference of its accommodation, retina mapping
+        and pupil.
     """
 
     model: str = "ideal"
@@ -447,6 +484,7 @@ class EyeSpec:
     mapping: str = "angular"
     focus_surface: str = "sphere"
     rfilter: str = "box"
+    wavelengths: object = None
 
     def __post_init__(self):
         try:
@@ -521,6 +559,10 @@ class EyeSpec:
             d["focus_surface"] = self.focus_surface
         if self.accommodation_diopters is not None:
             d["accommodation"] = float(self.accommodation_diopters)
+        if self.wavelengths is not None:
+            d.update(self.wavelengths.props())
+            if self.wavelengths.count > 1:  # the time sample carries the wavelength sample
+                d["shutter_open"], d["shutter_close"] = 0.0, 1.0
         return d
 
     def load(self, to_world=None, spp: int = 16, seed: int = 0):

@@ -384,6 +384,16 @@ def paraxial_accommodation(distance_mm: float, wavelength_nm: float = 550.0) -> 
     return float(brentq(f, A_RANGE[0], A_RANGE[1], xtol=1e-10))
 
 
+def refraction_diopters(wavelength_nm: float, accommodation: float = 0.0) -> float:
+    """The Arizona eye's paraxial refractive state at ``wavelength_nm`` (D): the vergence at the
+    cornea of the object point imaged on the retina vertex (−1/far point; 0 for an eye focused
+    at infinity, negative when it focuses nearer). Its change with wavelength is the eye's
+    longitudinal chromatic aberration (the chromatic eye of Thibos et al., *Appl. Opt.* 31,
+    3594 (1992), reproduces it: ``tests/test_spectral.py``)."""
+    fo = arizona_first_order(float(accommodation), float(wavelength_nm))
+    return 0.0 if math.isinf(fo.far_point) else 1000.0 / fo.far_point
+
+
 def _gauss_legendre_01(n: int):
     x, w = np.polynomial.legendre.leggauss(n)
     return 0.5 * (x + 1.0), 0.5 * w

@@ -54,6 +54,20 @@ class FocalStackSpec:
     optics: str = "analytic"  # "mesh": Mitsuba meshes of the optics, path-traced
     tessellation: float = 1.0  # mesh density, × lfsim.render.meshes defaults
     focus_cues: bool = True  # the focus-cue analysis (focus_cues.json/png, index.json's "focus_cues")
+    wavelength_nm: float | None = None  # None: spectral (wavelength_samples per primary); else monochrome
+    wavelength_samples: int = 4  # wavelength nodes per display primary (lfsim.render.spectra)
+
+    def wavelengths(self, design_nm: float):
+        """The render passes' wavelength nodes (list of :class:`lfsim.render.spectra.Wavelengths`):
+        one pass per primary on the analytic path unless ``wavelength_nm`` is set; the mesh path
+        is monochrome at ``design_nm`` (its glass BSDFs hold one index)."""
+        from .spectra import monochrome, spectral
+
+        if self.wavelength_nm is not None:
+            return monochrome(self.wavelength_nm)
+        if self.optics == "mesh":
+            return monochrome(design_nm)
+        return spectral(self.wavelength_samples)
 
 
 def _srgb8(img: np.ndarray) -> np.ndarray:
@@ -122,6 +136,20 @@ def render(scene_dict, sensor: dict | None = None) -> tuple[np.ndarray, float]:
     return img, time.perf_counter() - t0
 
 
+def render_passes(jobs, passes) -> tuple[np.ndarray, float]:
+    """Render ``jobs`` (``(scene, sensor)`` per wavelength pass of ``passes``) into one image:
+    a pass with a channel gives that channel, a monochrome pass every channel."""
+    if len(jobs) == 1 and passes[0].channel is None:
+        return render(*jobs[0])
+    img, total = None, 0.0
+    for (scene, sensor), w in zip(jobs, passes):
+        part, secs = render(scene, sensor)
+        total += secs
+        img = np.zeros_like(part) if img is None else img
+        img[..., w.channel] = part[..., w.channel]
+    return img, total
+
+
 def estimate(spec: FocalStackSpec, resolution: tuple[int, int], display_px: int):
     """The run time and peak memory of a focal stack (:class:`lfsim.budget.Estimate`), before it starts.
 
@@ -135,7 +163,9 @@ def estimate(spec: FocalStackSpec, resolution: tuple[int, int], display_px: int)
     samples = W * H * spec.spp
     rate = budget.threads() * budget.RATES["display_mesh" if spec.optics == "mesh" else "display_analytic"]
     nat = budget.threads() * budget.RATES["natural"]
-    seconds = (n * samples / rate + ((n + 1) * samples / nat if spec.natural else 0.0)
+    npass = len(spec.wavelengths(550.0))  # display passes (a spectral render: one per primary)
+    nat_pass = npass if spec.eye_model != "ideal" else 1
+    seconds = (npass * n * samples / rate + ((n * nat_pass + 1) * samples / nat if spec.natural else 0.0)
                + display_px * spec.ei_samples / (budget.threads() * budget.RATES["elemental_px"])
                + (2 * n + 1) * W * H * budget.POST_S_PER_PX)
     images = 2 * n + 1 if spec.natural else n
@@ -181,6 +211,7 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None):
     from .display_eye import sensor_dict as display_sensor
     from .elemental import elemental_images
     from .eye import EyeSpec
+    from .spectra import describe
 
     spec = spec or FocalStackSpec()
     mi = mitsuba()
@@ -211,6 +242,7 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None):
         bar.close()
     base_meta = {"design": design.path or design.name, "content": content.path, "cdp_mm": spec.cdp_mm,
                  "optics": spec.optics,
+                 "wavelengths_nm": ";".join(",".join(f"{v:.2f}" for v in w.nm) for w in spec.wavelengths(model.lam)),
                  "pupil_mm": spec.pupil_diameter_mm, "eye": spec.eye_model, "seed": spec.seed,
                  "fov_x_deg": fx, "fov_y_deg": fy}
     write_exr(out / "elemental_images.exr", display, dict(base_meta, kind="elemental_images",
@@ -220,7 +252,10 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None):
 
     if spec.optics not in ("analytic", "mesh"):
         raise ValueError(f"optics = {spec.optics!r}: expected 'analytic' or 'mesh'")
-    key = attach(ReverseOptics(model, 0, cells=spec.mla_cells))
+    passes = spec.wavelengths(model.lam)
+    spectral = passes[0].channel is not None
+    log(f"wavelengths: {describe(passes)}")
+    keys = [attach(ReverseOptics(model, 0, cells=spec.mla_cells, wavelengths=w)) for w in passes]
     shapes = None
     if spec.optics == "mesh":
         from .meshes import tessellation
@@ -235,9 +270,10 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None):
 
     loaded: dict = {}
 
-    def scene_for(kind, eye):
-        """The display through the optics (analytic or mesh path), or the content seen
-        directly: the scene (loaded once per kind) and this eye's sensor dict."""
+    def scene_for(kind, eye, key=None):
+        """The display through the optics (analytic or mesh path; ``key``: the attached optics
+        of the pass), or the content seen directly: the scene (loaded once per kind) and this
+        eye's sensor dict."""
         if kind == "display" and shapes is not None:
             sensor = eye.sensor_dict(vw, spec.spp, spec.seed)
         elif kind == "display":
@@ -265,8 +301,16 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None):
             it = tqdm(jobs, desc="retinal images", unit="img", leave=False)
         by_focus = {}
         for f, kind in it:
-            eye = EyeSpec(spec.eye_model, spec.pupil_diameter_mm, float(f), (fx, fy), (W, H))
-            img, secs = render(*scene_for(kind, eye))
+            def eye_for(w):
+                return EyeSpec(spec.eye_model, spec.pupil_diameter_mm, float(f), (fx, fy), (W, H), wavelengths=w)
+
+            if kind == "natural" and spec.eye_model == "ideal":
+                # The ideal eye is dispersion-free: its natural view is the same at every
+                # wavelength, one pass.
+                img, secs = render(*scene_for(kind, eye_for(None)))
+            else:
+                img, secs = render_passes(
+                    [scene_for(kind, eye_for(w), key) for w, key in zip(passes, keys)], passes)
             if not np.all(np.isfinite(img)):
                 raise FloatingPointError(f"non-finite pixels in the {kind} image at {f:g} mm")
             tag = f"{kind}_{f:g}mm"
@@ -284,7 +328,8 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None):
                   dict(base_meta, kind="reference", pupil_mm=0.01, spp=spec.spp, render_s=round(secs, 3)))
         write_png(out / "reference_pinhole.png", reference)
     finally:
-        release(key)
+        for key in keys:
+            release(key)
     for rec in images:
         pair = by_focus[rec["focus_mm"]]
         if "natural" in pair and rec["kind"] != "natural":
@@ -295,6 +340,7 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None):
            "cdp_diopters": cdp_D, "tunable_power_diopters": state.tunable_power_diopters,
            "pupil_diameter_mm": spec.pupil_diameter_mm, "eye_model": spec.eye_model,
            "mla_cells": spec.mla_cells, "optics": spec.optics,
+           "wavelengths_nm": [list(w.nm) for w in passes], "spectral": spectral,
            **({"tessellation": spec.tessellation} if spec.optics == "mesh" else {}),
            "fov_deg": [fx, fy], "resolution": [W, H], "seed": spec.seed,
            "display": {"width": layout.width, "height": layout.height, "pixel_pitch_mm": layout.pixel_pitch,
