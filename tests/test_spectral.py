@@ -132,3 +132,22 @@ def test_lateral_colour_of_a_rendered_display_view_equals_the_traced_chief_rays(
     for c in (0, 2):
         err = (got[c] - got[1]) - (pred[c] - pred[1])
         assert np.max(np.abs(err)) <= 0.25, (c, got, pred)
+
+
+def test_content_primaries_are_parsed_and_bad_ones_refused(tmp_path):
+    from lfsim.design.content import load_content
+    from lfsim.design.errors import DesignError
+
+    base = ('[[objects]]\ncorners = [[-10, -10, -500], [10, -10, -500], [-10, 10, -500]]\n')
+    good = tmp_path / "c.toml"
+    good.write_text(base + '[display]\nprimaries = { R = { peak_nm = 630.0, fwhm_nm = 20.0 }, '
+                    'G = { peak_nm = 525.0, fwhm_nm = 30.0 }, '
+                    'B = { wavelengths_nm = [440.0, 450.0, 460.0], values = [0.0, 1.0, 0.0] } }\n')
+    c = load_content(good)
+    assert c.primaries["R"].peak_nm == 630.0
+    assert np.allclose(spectral(1, c.primaries)[2].nm, [450.0])
+    bad = tmp_path / "b.toml"
+    bad.write_text(base + '[display]\nprimaries = { R = { peak_nm = -630.0, fwhm_nm = 20.0 }, '
+                   'G = { peak_nm = 525.0, fwhm_nm = 30.0 }, B = { peak_nm = 450.0, fwhm_nm = 20.0 } }\n')
+    with pytest.raises(DesignError, match="display.primaries.R"):
+        load_content(bad)

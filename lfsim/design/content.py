@@ -14,6 +14,9 @@ no lighting noise and the natural view is the exact ground truth::
     focus_mm = [600.0, 1000.0, 1400.0]
     pupil_diameter = 3.0
     background = [0.0, 0.0, 0.0] # radiance where a ray meets no object
+    [display]                    # optional: the microdisplay's primaries in spectral renders
+    primaries = { R = { peak_nm = 620.0, fwhm_nm = 35.0 },     # Gaussian, or tabulated:
+                  G = { wavelengths_nm = [...], values = [...] }, B = { ... } }
     [[objects]]
     type = "quad"
     corners = [[x0, y0, z0], [x1, y1, z1], [x2, y2, z2]]  # origin, +u end, +v end
@@ -90,6 +93,46 @@ class ContentScene:
     objects: list[Quad]
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     view: ContentView = VIEW_DEFAULTS
+    #: Display primaries of spectral renders ({"R", "G", "B"}: lfsim.render.spectra.Primary);
+    #: None: the default OLED microdisplay's.
+    primaries: dict | None = None
+
+
+def _primaries(file, data) -> dict | None:
+    """The ``[display]`` section: ``primaries = { R = {...}, G = {...}, B = {...} }``, each a
+    Gaussian ``{ peak_nm, fwhm_nm }`` or a table ``{ wavelengths_nm = [...], values = [...] }``."""
+    from ..render.spectra import CHANNELS, Primary
+
+    disp = data.get("display")
+    if disp is None:
+        return None
+    if not isinstance(disp, dict):
+        raise DesignError(file, "display", disp, "expected a table")
+    unknown = set(disp) - {"primaries"}
+    if unknown:
+        k = sorted(unknown)[0]
+        raise DesignError(file, f"display.{k}", disp[k], "unknown key")
+    prim = disp.get("primaries")
+    if not isinstance(prim, dict) or set(prim) != set(CHANNELS):
+        raise DesignError(file, "display.primaries", prim, "expected a table with R, G and B spectra")
+    out = {}
+    for c in CHANNELS:
+        t = prim[c]
+        key = f"display.primaries.{c}"
+        if not isinstance(t, dict) or not (set(t) in ({"peak_nm", "fwhm_nm"}, {"wavelengths_nm", "values"})):
+            raise DesignError(file, key, t, "expected { peak_nm, fwhm_nm } or { wavelengths_nm = [...], "
+                              "values = [...] }")
+        try:
+            if "peak_nm" in t:
+                out[c] = Primary(peak_nm=t["peak_nm"], fwhm_nm=t["fwhm_nm"])
+            else:
+                lam, val = t["wavelengths_nm"], t["values"]
+                if not (isinstance(lam, list) and isinstance(val, list)):
+                    raise ValueError("wavelengths_nm and values must be lists of numbers")
+                out[c] = Primary(wavelengths_nm=tuple(lam), values=tuple(val))
+        except (ValueError, TypeError) as e:
+            raise DesignError(file, key, t, str(e)) from None
+    return out
 
 
 def _num(file, key, v, positive=False, allow_inf=False):
@@ -209,4 +252,5 @@ def content_from_dict(data: dict, file: str = "<dict>", base: Path = Path(".")) 
     if "pupil_diameter" in view:
         v["pupil_diameter_mm"] = _num(file, "view.pupil_diameter", view["pupil_diameter"], positive=True)
     bg = _rgb(file, "view.background", view.get("background", 0.0))
-    return ContentScene(file, str(data.get("name", Path(file).stem)), out, bg, ContentView(**v))
+    return ContentScene(file, str(data.get("name", Path(file).stem)), out, bg, ContentView(**v),
+                        _primaries(file, data))

@@ -57,7 +57,7 @@ class FocalStackSpec:
     wavelength_nm: float | None = None  # None: spectral (wavelength_samples per primary); else monochrome
     wavelength_samples: int = 4  # wavelength nodes per display primary (lfsim.render.spectra)
 
-    def wavelengths(self, design_nm: float):
+    def wavelengths(self, design_nm: float, primaries: dict | None = None):
         """The render passes' wavelength nodes (list of :class:`lfsim.render.spectra.Wavelengths`):
         one pass per primary on the analytic path unless ``wavelength_nm`` is set; the mesh path
         is monochrome at ``design_nm`` (its glass BSDFs hold one index)."""
@@ -67,7 +67,7 @@ class FocalStackSpec:
             return monochrome(self.wavelength_nm)
         if self.optics == "mesh":
             return monochrome(design_nm)
-        return spectral(self.wavelength_samples)
+        return spectral(self.wavelength_samples, primaries)
 
 
 def _srgb8(img: np.ndarray) -> np.ndarray:
@@ -242,7 +242,8 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None):
         bar.close()
     base_meta = {"design": design.path or design.name, "content": content.path, "cdp_mm": spec.cdp_mm,
                  "optics": spec.optics,
-                 "wavelengths_nm": ";".join(",".join(f"{v:.2f}" for v in w.nm) for w in spec.wavelengths(model.lam)),
+                 "wavelengths_nm": ";".join(",".join(f"{v:.2f}" for v in w.nm)
+                                            for w in spec.wavelengths(model.lam, content.primaries)),
                  "pupil_mm": spec.pupil_diameter_mm, "eye": spec.eye_model, "seed": spec.seed,
                  "fov_x_deg": fx, "fov_y_deg": fy}
     write_exr(out / "elemental_images.exr", display, dict(base_meta, kind="elemental_images",
@@ -252,7 +253,7 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None):
 
     if spec.optics not in ("analytic", "mesh"):
         raise ValueError(f"optics = {spec.optics!r}: expected 'analytic' or 'mesh'")
-    passes = spec.wavelengths(model.lam)
+    passes = spec.wavelengths(model.lam, content.primaries)
     spectral = passes[0].channel is not None
     log(f"wavelengths: {describe(passes)}")
     keys = [attach(ReverseOptics(model, 0, cells=spec.mla_cells, wavelengths=w)) for w in passes]
