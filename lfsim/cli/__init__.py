@@ -13,7 +13,7 @@ import sys
 from .. import __version__, budget, progress
 from ..backend import BackendError
 from ..design import DesignError
-from . import ini, optics, render, tolerance
+from . import ini, optics, render, tolerance, vision
 from .common import InputError
 from .optics import read_rays_csv
 
@@ -33,7 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
                 "displays (design, analyze, optimize, render focal stacks).")
     p.add_argument("--version", action="version", version=f"lfsim {__version__}")
     sub = p.add_subparsers(dest="verb", required=True, metavar="VERB")
-    for verbs in (optics, ini, render, tolerance):
+    for verbs in (optics, ini, render, tolerance, vision):
         verbs.register(sub)
     return p
 

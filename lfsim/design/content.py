@@ -119,7 +119,7 @@ def _primaries(file, data) -> dict | None:
     for c in CHANNELS:
         t = prim[c]
         key = f"display.primaries.{c}"
-        if not isinstance(t, dict) or not (set(t) in ({"peak_nm", "fwhm_nm"}, {"wavelengths_nm", "values"})):
+        if not isinstance(t, dict) or set(t) not in ({"peak_nm", "fwhm_nm"}, {"wavelengths_nm", "values"}):
             raise DesignError(file, key, t, "expected { peak_nm, fwhm_nm } or { wavelengths_nm = [...], "
                               "values = [...] }")
         try:

@@ -68,7 +68,9 @@ ideal only), ``accommodation`` (D, arizona only; default: solved from
 ``focus_distance`` with :func:`solve_accommodation`), ``wavelength_nm``
 (default 550; arizona media dispersion, ignored by the ideal eye), ``wavelengths``
 (spectral rendering, :mod:`lfsim.render.spectra`: comma-separated node wavelengths, each
-ray picks one from its wavelength sample; the Arizona eye traces it there).
+ray picks one from its wavelength sample; the Arizona eye traces it there), ``diffraction``
+(bool, default false: each ray turned by an angle sampled from the pupil's Airy pattern at
+its wavelength, :mod:`lfsim.render.diffraction`).
 """
 
 from __future__ import annotations
@@ -213,6 +215,17 @@ def _sensor_class(mi):
             from .spectra import Wavelengths
 
             self.waves = Wavelengths.from_props(props)
+            # Diffraction of the pupil (lfsim.render.diffraction): each ray turned by an angle
+            # sampled from the pupil's Airy pattern at the ray's wavelength.
+            self.diffraction = bool(props.get("diffraction", False))
+            if self.diffraction:
+                from .diffraction import AiryKick
+
+                self._airy = AiryKick(mi)
+                nm = self.waves.nm if self.waves is not None else (p["wavelength_nm"],)
+                self._nodes_nm = mi.Float(np.asarray(nm, dtype=np.float32))
+                dr.make_opaque(self._nodes_nm)
+                self._pupil_diameter = op(p["pupil_diameter"])
             if self.model == "arizona":
                 self._init_arizona(p)
 
@@ -385,6 +398,12 @@ def _sensor_class(mi):
                 o, d, w, ok, diffs = self._sample_ideal(s2, s3, differentials)
             else:
                 o, d, w, ok, diffs = self._sample_arizona(s2, s3, differentials, j)
+            if self.diffraction:
+                from .diffraction import random_pair
+
+                u1, u2 = random_pair(mi, s2, s3)
+                lam = dr.gather(mi.Float, self._nodes_nm, j)
+                d = self._airy.kick(d, u1, u2, lam, self._pupil_diameter)
             ok = ok & active
             to_world = self.m_to_world
             wavelengths = dr.zeros(mi.Color0f) if not mi.is_spectral else None
@@ -472,6 +491,9 @@ class EyeSpec:
         pass; None: ``wavelength_nm``). The Arizona eye traces each ray at its node;
         ``wavelength_nm`` stays the reference of its accommodation, retina mapping
         and pupil.
+    diffraction : bool
+        Diffraction of the pupil: each ray turned by an angle sampled from the pupil's Airy
+        pattern at its wavelength (:mod:`lfsim.render.diffraction`).
     """
 
     model: str = "ideal"
@@ -485,6 +507,7 @@ class EyeSpec:
     focus_surface: str = "sphere"
     rfilter: str = "box"
     wavelengths: object = None
+    diffraction: bool = False
 
     def __post_init__(self):
         try:
@@ -559,6 +582,8 @@ class EyeSpec:
             d["focus_surface"] = self.focus_surface
         if self.accommodation_diopters is not None:
             d["accommodation"] = float(self.accommodation_diopters)
+        if self.diffraction:
+            d["diffraction"] = True
         if self.wavelengths is not None:
             d.update(self.wavelengths.props())
             if self.wavelengths.count > 1:  # the time sample carries the wavelength sample
