@@ -29,7 +29,8 @@ def cmd_focal_stack(args) -> int:
     spec = FocalStackSpec(focus_mm=[float(f) for f in focus], cdp_mm=cdp, pupil_diameter_mm=float(pupil),
                           spp=args.spp, resolution=res, seed=args.seed, eye_model=args.eye,
                           mla_cells=args.mla_cells, optics=args.optics, tessellation=args.tessellation,
-                          wavelength_nm=args.wavelength_nm, wavelength_samples=args.wavelength_samples)
+                          wavelength_nm=args.wavelength_nm, wavelength_samples=args.wavelength_samples,
+                          diffraction=not args.no_diffraction)
     quiet = args.json  # progress: a bar on a terminal, periodic lines in a log
     log = (lambda *a, **k: None) if args.json else (lambda msg: print(msg, file=sys.stderr))
     doc, _ = focal_stack(design, content, args.out, spec, progress=not quiet, log=log)
@@ -196,6 +197,8 @@ def register(sub) -> None:
     fs.add_argument("--wavelength-nm", type=float,
                     help="render every channel at this one wavelength, nm (default: spectral, the display "
                          "primaries' spectra; the mesh optics are monochrome at the design's primary)")
+    fs.add_argument("--no-diffraction", action="store_true",
+                    help="geometric images: no diffraction by the views' apertures and the pupil")
     fs.add_argument("--wavelength-samples", type=int, default=4,
                     help="wavelength nodes per display primary of a spectral render (default 4)")
     fs.add_argument("--tessellation", type=float, default=1.0,

@@ -229,7 +229,7 @@ class SequentialTracer:
     # ---------------------------------------------------------------- trace
     def trace(self, P, rays: RayState, block=None, lenslet=None, record: bool = False,
               first: int = 0, last: int | None = None, clip: bool = True,
-              cells: str = "fixed") -> TraceOutput:
+              cells: str = "fixed", kick=None) -> TraceOutput:
         """Trace ``rays`` through every surface; see the module docstring.
 
         Parameters
@@ -255,6 +255,12 @@ class SequentialTracer:
         clip : bool
             Apply clear apertures and lenslet cells (default). ``False`` lets
             rays through them, e.g. to aim a ray at a point on an aperture's edge.
+        kick : (int, callable), optional
+            ``(i, f)``: after surface ``i``, the ray's direction becomes
+            ``f(d, hit, cell, n)`` (local frame of surface ``i``; ``hit``
+            lenslet-relative on an array surface, ``cell`` its (m, n) or None,
+            ``n`` the index of the medium the ray goes on in): the diffraction
+            of an aperture there (:mod:`lfsim.render.diffraction`).
         cells : {"fixed", "per_surface"}
             Lenslet arrays. ``"fixed"`` (default, the sub-system view): a ray
             belongs to the cell it enters at the group's first surface, and
@@ -444,6 +450,9 @@ class SequentialTracer:
 
             elif s.interaction == "paraxial":
                 d_new, dopl = _ideal_lens(dl, hit, pr(f"{s.name}.power"), n1, T)
+            if kick is not None and i == kick[0]:
+                n_on = pr(f"{s.name}.index") if s.interaction == "refract" else n1
+                d_new = kick[1](d_new, hit, (m_idx, n_idx) if offset is not None else None, n_on)
 
             alive = status == 0
             # Failed rays keep their last valid state (re-expressed in this frame).

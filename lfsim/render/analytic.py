@@ -43,7 +43,7 @@ class ReverseOptics:
     """
 
     def __init__(self, model, k: int = 0, precision: str = "float32", cells: str = "per_surface",
-                 wavelengths=None):
+                 wavelengths=None, diffraction_pupil_mm: float | None = None):
         self.model = model
         self.cells = cells
         spec, system = model.spec, model.system
@@ -62,6 +62,17 @@ class ReverseOptics:
         #: Wavelength nodes of the pass (:class:`lfsim.render.spectra.Wavelengths`): one parameter block each.
         self.wavelengths = wavelengths if wavelengths is not None else monochrome(model.lam)[0]
         self.wavelength_nm = self.wavelengths.nm[0] if self.wavelengths.count == 1 else model.lam
+        #: Diffraction of each elemental view's aperture for an eye pupil of this diameter
+        #: (:class:`lfsim.render.diffraction.ViewApertureKick`), applied at the lenslet stop.
+        self.diffraction = None
+        if diffraction_pupil_mm is not None:
+            from .diffraction import ViewApertureKick
+
+            self.diffraction = ViewApertureKick(model, k, diffraction_pupil_mm, self.T)
+            stop = system.surfaces[spec.stop].name
+            self._stop = next(j for j, s in enumerate(self.system.surfaces) if s.name == stop)
+            self._nodes_nm = self.T.Float(np.asarray(self.wavelengths.nm, dtype=self.T.np_dtype))
+            dr.make_opaque(self._nodes_nm)
         self.R_vw = np.asarray(model.R_vw, dtype=np.float64)
         self.o_vw = np.asarray(model.o_vw, dtype=np.float64)
         self._P = None
@@ -78,18 +89,35 @@ class ReverseOptics:
         R = T.Matrix3(*(c(v) for v in self.R_vw.ravel()))
         return T.Array3(R @ T.Array3(o_local)) + T.Array3(*(c(v) for v in self.o_vw)), R @ T.Array3(d_local)
 
-    def to_display(self, o_local, d_local, block=None):
+    def to_display(self, o_local, d_local, block=None, kick_u=None):
         """Trace eye rays (viewing-window frame, heading −z) back to the display.
 
         ``block``: each ray's wavelength node (UInt32; default node 0).
+        ``kick_u``: two uniform numbers per ray, for the diffraction of the view's aperture
+        (optics built with ``diffraction_pupil_mm``).
         Returns ``(p, d, valid)``: the hit on the display plane and the
         direction there (global frame, Dr.Jit) and whether the ray got
         through every surface.
         """
+        kick = None
+        if self.diffraction is not None and kick_u is not None:
+            T = self.T
+            # Where the ray crosses the viewing-window plane: the pupil point of its view.
+            ol, dl_ = T.Array3(o_local), T.Array3(d_local)
+            t = -ol.z / dr.select(dr.abs(dl_.z) > 0.0, dl_.z, 1.0)
+            q = (dr.fma(dl_.x, t, ol.x), dr.fma(dl_.y, t, ol.y))
+            nodes = dr.zeros(T.UInt32, dr.width(ol.x)) if block is None else T.UInt32(block)
+            lam_mm = dr.gather(T.Float, self._nodes_nm, nodes) * 1e-6
+            kd, u1, u2 = self.diffraction, kick_u[0], kick_u[1]
+
+            def f(dd, hit, cell, n_on):
+                return kd.kick(dd, hit, cell, q, lam_mm / n_on, u1, u2)
+
+            kick = (self._stop, f)
         o, d = self.to_global(o_local, d_local)
         if block is not None:
             block = self.T.UInt32(block)
-        out = self.tracer.trace(self.params(), RayState(o, d), block=block, cells=self.cells)
+        out = self.tracer.trace(self.params(), RayState(o, d), block=block, cells=self.cells, kick=kick)
         return out.p, out.d, out.status == 0
 
     def to_display_numpy(self, o_local: np.ndarray, d_local: np.ndarray, block=None):

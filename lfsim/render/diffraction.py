@@ -107,3 +107,121 @@ class AiryKick:
         phi = 2.0 * math.pi * u2
         frame = mi.Frame3f(d)
         return dr.normalize(c * d + s * (dr.cos(phi) * frame.s + dr.sin(phi) * frame.t))
+
+
+#: Largest slit coordinate t = π w s / λ sampled (1 − CDF ≈ 1 / (π² t / 2)... : 0.1 % beyond).
+SLIT_T_MAX = 200.0 * math.pi
+
+
+@lru_cache(maxsize=4)
+def slit_inverse_cdf(n: int = AIRY_TABLE, t_max: float = SLIT_T_MAX) -> np.ndarray:
+    """|t| at ``n`` equally spaced fractions of the slit pattern ``sinc²(t)``'s energy on
+    [0, t_max] (one side; ``∫₀ᵀ sin² t / t² dt = Si(2T) − sin² T / T``)."""
+    from scipy.special import sici
+
+    t = np.unique(np.concatenate([np.linspace(0.0, 60.0, 60001), np.geomspace(60.0, t_max, 20001)]))
+    tt = np.maximum(t, 1e-12)
+    F = sici(2.0 * tt)[0] - np.sin(tt) ** 2 / tt
+    F = np.maximum.accumulate(F) / F[-1]
+    return np.interp(np.linspace(0.0, 1.0, n), F, t)
+
+
+class ViewApertureKick:
+    """Diffraction of an elemental view's aperture on the display path (Dr.Jit, in the
+    reverse trace at the lenslet stop: the aperture-array opening or the lenslet's face).
+
+    The view's aperture is the stop's opening clipped by the image of the eye pupil in the
+    stop's plane. For the ray that crossed the pupil at ``q`` and meets the stop at ``a``
+    (lenslet-relative), that image is the ellipse ``a − K q + K·disk(R)``, ``K`` the inverse
+    of the lenslet's Jacobian ``J = ∂(viewing-window position) / ∂(stop position)`` (traced
+    per lenslet from its elemental-image centre). The ellipse is replaced by its bounding
+    box, so the aperture is a rectangle (exact when the pupil does not clip the view, the
+    usual case of a small stop and a large pupil; a clipped view's curved edge becomes a
+    straight one), and its Fraunhofer pattern is the separable ``sinc²`` of its widths
+    ``w_x, w_y``: direction cosines change by ``s = t λ / (π w)`` per axis, ``t`` sampled
+    from :func:`slit_inverse_cdf`, ``λ`` in the medium at the stop.
+    """
+
+    def __init__(self, model, k: int, pupil_diameter_mm: float, T):
+        import drjit as dr
+
+        from ..ini.subsystems import trace_rays
+
+        self.T = T
+        self.pupil_mm = float(pupil_diameter_mm)
+        M, N = model.arr.m, model.arr.n
+        mm, nn = np.meshgrid(np.arange(M), np.arange(N), indexing="ij")
+        mm, nn = mm.ravel(), nn.ravel()
+        s0 = model.ei_centers(k, mm, nn)
+        eps = 0.01
+        rho = np.array([[0.0, 0.0], [eps, 0.0], [0.0, eps]])
+        L = len(mm)
+        pos, _, _, status, _ = trace_rays(model, np.repeat(s0, 3, axis=0), np.repeat(mm, 3), np.repeat(nn, 3),
+                                          np.tile(rho, (L, 1)), np.full(3 * L, k), iterations=12)
+        pos, ok = pos.reshape(L, 3, 2), (status.reshape(L, 3) == 0).all(axis=1)
+        half = np.asarray(model.stop_half, dtype=np.float64)
+        J = np.stack([(pos[:, 1] - pos[:, 0]) / (eps * half[0]), (pos[:, 2] - pos[:, 0]) / (eps * half[1])], axis=2)
+        K = np.zeros_like(J)
+        det = np.linalg.det(J)
+        good = ok & np.isfinite(det) & (np.abs(det) > 1e-12)
+        K[good] = np.linalg.inv(J[good])
+        R = 0.5 * self.pupil_mm
+        ext = R * np.sqrt(np.sum(K ** 2, axis=2))  # (L, 2): the ellipse's half extents along x, y
+        ext[~good] = 1e9  # no Jacobian (a lenslet no ray of the EI centre gets through): no clipping
+        self.K = K
+        self.extent = ext
+        self.half = half
+        self.n_lens = N
+        # Lenslet index m·N + n → its K (4) and extents (2), opaque.
+        self._K = T.Float(K.reshape(-1).astype(T.np_dtype))
+        self._E = T.Float(ext.reshape(-1).astype(T.np_dtype))
+        tab = slit_inverse_cdf()
+        self.n = len(tab)
+        self._tab = T.Float(tab.astype(T.np_dtype))
+        dr.make_opaque(self._K, self._E, self._tab)
+        self._hx = dr.opaque(T.Float, float(half[0]))
+        self._hy = dr.opaque(T.Float, float(half[1]))
+
+    def _slit(self, u):
+        """Signed slit coordinate t for u ∈ [0, 1): sign from u < ½, |t| from the table."""
+        import drjit as dr
+
+        T = self.T
+        v = dr.abs(2.0 * u - 1.0)
+        x = v * float(self.n - 1)
+        i = T.UInt32(dr.minimum(dr.floor(x), float(self.n - 2)))
+        f = x - T.Float(i)
+        a = dr.gather(T.Float, self._tab, i)
+        b = dr.gather(T.Float, self._tab, i + 1)
+        return dr.select(u < 0.5, -1.0, 1.0) * dr.fma(f, b - a, a)
+
+    def widths(self, hit, cell, q):
+        """Per ray (w_x, w_y) (mm): the stop opening ∩ the bounding box of the pupil's image."""
+        import drjit as dr
+
+        T = self.T
+        L = T.UInt32(cell[0]) * self.n_lens + T.UInt32(cell[1])
+        k = [dr.gather(T.Float, self._K, L * 4 + j) for j in range(4)]
+        ex, ey = dr.gather(T.Float, self._E, L * 2), dr.gather(T.Float, self._E, L * 2 + 1)
+        cx = hit.x - (k[0] * q[0] + k[1] * q[1])
+        cy = hit.y - (k[2] * q[0] + k[3] * q[1])
+        wx = dr.minimum(self._hx, cx + ex) - dr.maximum(-self._hx, cx - ex)
+        wy = dr.minimum(self._hy, cy + ey) - dr.maximum(-self._hy, cy - ey)
+        tiny = 1e-4 * dr.minimum(self._hx, self._hy)
+        return dr.maximum(wx, tiny), dr.maximum(wy, tiny)
+
+    def kick(self, d, hit, cell, q, lam_mm, u1, u2):
+        """Direction ``d`` (local to the stop surface) changed by the Fraunhofer pattern of the
+        view's aperture; ``lam_mm``: the wavelength in the medium there."""
+        import drjit as dr
+
+        wx, wy = self.widths(hit, cell, q)
+        sx = self._slit(u1) * lam_mm / (math.pi * wx)
+        sy = self._slit(u2) * lam_mm / (math.pi * wy)
+        ax, ay = d.x + sx, d.y + sy
+        r2 = dr.fma(ax, ax, ay * ay)
+        # A kick beyond the hemisphere (the far tail of a tiny aperture) is evanescent: keep d.
+        ok = r2 < 1.0
+        az = dr.select(d.z < 0.0, -1.0, 1.0) * dr.safe_sqrt(1.0 - r2)
+        T = self.T
+        return T.Array3(dr.select(ok, ax, d.x), dr.select(ok, ay, d.y), dr.select(ok, az, d.z))

@@ -65,6 +65,15 @@ def _sensor_class(mi):
                            "crop_offset_y": int(oy), "crop_width": int(cw), "crop_height": int(ch)}
             self.eye = mi.load_dict(eye)
             self.m_needs_sample_3 = True
+            # Diffraction on the display path: each view's aperture (the lenslet stop clipped by
+            # the pupil's image) at the stop, not the pupil again at the eye.
+            self.diffraction = bool(props.get("diffraction", False))
+            if self.diffraction:
+                kd = self.optics.diffraction
+                pupil = float(props.get("pupil_diameter", 3.0))
+                if kd is None or abs(kd.pupil_mm - pupil) > 1e-9:
+                    raise ValueError(f"lfsim_display_eye: diffraction needs optics built for the eye's "
+                                     f"{pupil:g} mm pupil (ReverseOptics(diffraction_pupil_mm=...))")
             n_eye = 1 if self.eye.waves is None else self.eye.waves.count
             if n_eye != self.optics.wavelengths.count:
                 raise ValueError(f"lfsim_display_eye: the eye has {n_eye} wavelength node(s), the optics "
@@ -75,7 +84,12 @@ def _sensor_class(mi):
             T = self.optics.T
             o = T.Array3(ray.o.x, ray.o.y, ray.o.z)
             d = T.Array3(ray.d.x, ray.d.y, ray.d.z)
-            p, dd, ok = self.optics.to_display(o, d, block=self.eye.node(time))
+            kick_u = None
+            if self.diffraction:
+                from .diffraction import random_pair
+
+                kick_u = random_pair(mi, sample2, sample3, salt=0x5BD1E995)
+            p, dd, ok = self.optics.to_display(o, d, block=self.eye.node(time), kick_u=kick_u)
             ok = ok & (dd.z < 0)
             start = p - LAUNCH_GAP * dd
             out = mi.Ray3f(mi.Point3f(start.x, start.y, start.z),

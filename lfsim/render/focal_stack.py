@@ -56,6 +56,7 @@ class FocalStackSpec:
     focus_cues: bool = True  # the focus-cue analysis (focus_cues.json/png, index.json's "focus_cues")
     wavelength_nm: float | None = None  # None: spectral (wavelength_samples per primary); else monochrome
     wavelength_samples: int = 4  # wavelength nodes per display primary (lfsim.render.spectra)
+    diffraction: bool = True  # the views' apertures and the eye pupil diffract (lfsim.render.diffraction)
 
     def wavelengths(self, design_nm: float, primaries: dict | None = None):
         """The render passes' wavelength nodes (list of :class:`lfsim.render.spectra.Wavelengths`):
@@ -164,7 +165,7 @@ def estimate(spec: FocalStackSpec, resolution: tuple[int, int], display_px: int)
     rate = budget.threads() * budget.RATES["display_mesh" if spec.optics == "mesh" else "display_analytic"]
     nat = budget.threads() * budget.RATES["natural"]
     npass = len(spec.wavelengths(550.0))  # display passes (a spectral render: one per primary)
-    nat_pass = npass if spec.eye_model != "ideal" else 1
+    nat_pass = npass if spec.eye_model != "ideal" or spec.diffraction else 1
     seconds = (npass * n * samples / rate + ((n * nat_pass + 1) * samples / nat if spec.natural else 0.0)
                + display_px * spec.ei_samples / (budget.threads() * budget.RATES["elemental_px"])
                + (2 * n + 1) * W * H * budget.POST_S_PER_PX)
@@ -241,7 +242,7 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None):
     if bar:
         bar.close()
     base_meta = {"design": design.path or design.name, "content": content.path, "cdp_mm": spec.cdp_mm,
-                 "optics": spec.optics,
+                 "optics": spec.optics, "diffraction": int(spec.diffraction and spec.optics == "analytic"),
                  "wavelengths_nm": ";".join(",".join(f"{v:.2f}" for v in w.nm)
                                             for w in spec.wavelengths(model.lam, content.primaries)),
                  "pupil_mm": spec.pupil_diameter_mm, "eye": spec.eye_model, "seed": spec.seed,
@@ -256,7 +257,11 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None):
     passes = spec.wavelengths(model.lam, content.primaries)
     spectral = passes[0].channel is not None
     log(f"wavelengths: {describe(passes)}")
-    keys = [attach(ReverseOptics(model, 0, cells=spec.mla_cells, wavelengths=w)) for w in passes]
+    # Diffraction on the analytic path only (the mesh path's BSDFs bend no ray by an aperture).
+    diffraction = spec.diffraction and spec.optics == "analytic"
+    keys = [attach(ReverseOptics(model, 0, cells=spec.mla_cells, wavelengths=w,
+                                 diffraction_pupil_mm=spec.pupil_diameter_mm if diffraction else None))
+            for w in passes]
     shapes = None
     if spec.optics == "mesh":
         from .meshes import tessellation
@@ -303,11 +308,12 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None):
         by_focus = {}
         for f, kind in it:
             def eye_for(w):
-                return EyeSpec(spec.eye_model, spec.pupil_diameter_mm, float(f), (fx, fy), (W, H), wavelengths=w)
+                return EyeSpec(spec.eye_model, spec.pupil_diameter_mm, float(f), (fx, fy), (W, H), wavelengths=w,
+                               diffraction=diffraction)
 
-            if kind == "natural" and spec.eye_model == "ideal":
-                # The ideal eye is dispersion-free: its natural view is the same at every
-                # wavelength, one pass.
+            if kind == "natural" and spec.eye_model == "ideal" and not diffraction:
+                # The ideal eye is dispersion-free: without diffraction its natural view is
+                # the same at every wavelength, one pass.
                 img, secs = render(*scene_for(kind, eye_for(None)))
             else:
                 img, secs = render_passes(
@@ -341,7 +347,7 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None):
            "cdp_diopters": cdp_D, "tunable_power_diopters": state.tunable_power_diopters,
            "pupil_diameter_mm": spec.pupil_diameter_mm, "eye_model": spec.eye_model,
            "mla_cells": spec.mla_cells, "optics": spec.optics,
-           "wavelengths_nm": [list(w.nm) for w in passes], "spectral": spectral,
+           "wavelengths_nm": [list(w.nm) for w in passes], "spectral": spectral, "diffraction": diffraction,
            **({"tessellation": spec.tessellation} if spec.optics == "mesh" else {}),
            "fov_deg": [fx, fy], "resolution": [W, H], "seed": spec.seed,
            "display": {"width": layout.width, "height": layout.height, "pixel_pitch_mm": layout.pixel_pitch,

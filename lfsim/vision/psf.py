@@ -223,7 +223,7 @@ def render_psf(design, spec: PsfSpec, log=print) -> tuple[np.ndarray, dict]:
 
     def eye_for(w):
         return EyeSpec(spec.eye, spec.pupil_mm, focus_mm, (fov / 60.0, fov / 60.0), (N, N), wavelengths=w,
-                       diffraction=spec.diffraction and spec.view == "natural")
+                       diffraction=spec.diffraction)
 
     if spec.view == "natural":
         L = _distance_mm(spec.depth_d)
@@ -239,14 +239,12 @@ def render_psf(design, spec: PsfSpec, log=print) -> tuple[np.ndarray, dict]:
             jobs = [(scene, eye_for(w).sensor_dict(None, spec.spp, spec.seed)) for w in passes]
             img, secs = render_passes(jobs, passes)
     else:
-        if spec.diffraction:
-            log("psf: the display path's view apertures do not diffract yet: its image is geometric")
-            doc["diffraction"] = False
         display, shown = point_display(model, layout, spec.depth_d)
         doc["elemental_images_showing_the_point"] = shown
         if shown == 0:
             raise ValueError(f"depth {spec.depth_d:g} D: no elemental image of {design.path} shows a point there")
-        keys = [attach(ReverseOptics(model, 0, wavelengths=w)) for w in passes]
+        pupil = spec.pupil_mm if spec.diffraction else None
+        keys = [attach(ReverseOptics(model, 0, wavelengths=w, diffraction_pupil_mm=pupil)) for w in passes]
         try:
             scene = load_scene({"type": "scene", "display": layout.emitter_dict(display), "integrator": INTEGRATOR})
             jobs = [(scene, display_sensor(eye_for(w), key, spec.spp, spec.seed)) for w, key in zip(passes, keys)]
