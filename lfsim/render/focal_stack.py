@@ -165,7 +165,8 @@ def estimate(spec: FocalStackSpec, resolution: tuple[int, int], display_px: int)
     rate = budget.threads() * budget.RATES["display_mesh" if spec.optics == "mesh" else "display_analytic"]
     nat = budget.threads() * budget.RATES["natural"]
     npass = len(spec.wavelengths(550.0))  # display passes (a spectral render: one per primary)
-    nat_pass = npass if spec.eye_model != "ideal" or spec.diffraction else 1
+    diffracts = spec.diffraction and spec.optics == "analytic"
+    nat_pass = npass if spec.eye_model != "ideal" or diffracts else 1
     seconds = (npass * n * samples / rate + ((n * nat_pass + 1) * samples / nat if spec.natural else 0.0)
                + display_px * spec.ei_samples / (budget.threads() * budget.RATES["elemental_px"])
                + (2 * n + 1) * W * H * budget.POST_S_PER_PX)
