@@ -460,6 +460,20 @@ def register():
 
 
 # --------------------------------------------------------------- plain API
+def sampler_type(spp: int) -> str:
+    """The retinal cameras' sampler: Mitsuba's ``multijitter`` (film, pupil and wavelength
+    samples stratified per pixel) where it keeps ``spp`` exactly, else ``independent``.
+
+    Measured on the default focal stack's display image at 64 spp (RMSE / mean of one image,
+    from two seeds): 0.034 against 0.076 independent without diffraction, 0.056 against 0.084
+    with it (the diffraction kicks' random numbers are not stratified): 1.5-2.2x less noise
+    at the same cost (docs/rendering.md).
+    """
+    # Mitsuba's multijitter grid: sqrt(spp) rounded down columns, rows to cover spp.
+    rx = max(1, math.isqrt(int(spp)))
+    return "multijitter" if rx * ((int(spp) + rx - 1) // rx) == spp else "independent"
+
+
 @dataclass(frozen=True)
 class EyeSpec:
     """A retinal camera in plain Python (units: mm, degrees, diopters, nm).
@@ -576,7 +590,7 @@ class EyeSpec:
             "wavelength_nm": float(self.wavelength_nm),
             "film": {"type": "hdrfilm", "width": int(w), "height": int(h),
                      "pixel_format": "rgb", "rfilter": {"type": self.rfilter}},
-            "sampler": {"type": "independent", "sample_count": int(spp), "seed": int(seed)},
+            "sampler": {"type": sampler_type(int(spp)), "sample_count": int(spp), "seed": int(seed)},
         }
         if self.model == "ideal":
             d["focus_surface"] = self.focus_surface
