@@ -15,7 +15,7 @@ sys.modules["accuracy_report"] = accuracy_report  # dataclasses resolve their mo
 _SPEC.loader.exec_module(accuracy_report)
 
 KNOBS = ["tracer_precision", "newton_tol", "newton_max_iter", "pupil", "mtf_grid", "fields", "refine", "stride", "spp",
-         "tessellation", "accommodation"]
+         "tessellation", "wavelength_samples", "accommodation"]
 
 
 def test_quick_report_has_a_row_and_a_plot_per_knob(tmp_path):
@@ -48,6 +48,9 @@ def test_quick_report_has_a_row_and_a_plot_per_knob(tmp_path):
     # … and Monte Carlo noise falls with the samples per pixel.
     spp = [r["errors"][0] for r in by["spp"]["rows"]]
     assert spp == sorted(spp, reverse=True)
+    # … and the wavelength quadrature's error with its nodes (one node per primary: the worst).
+    wav = {int(r["setting"]): r["errors"][0] for r in by["wavelength_samples"]["rows"]}
+    assert wav[1] > wav[max(wav)] > 0
 
 
 def test_unwritable_out_is_refused_before_any_work(tmp_path, capsys):

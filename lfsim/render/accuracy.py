@@ -166,3 +166,56 @@ def error_vs_time(design, content, cdp_mm: float = 750.0, resolution=(128, 74), 
     rows_seg = [{"density": float(S), **tessellation(S), "rel_rmse": relative_rmse(pairs[S][0], base),
                  "seconds": pairs[S][1]} for S in densities]
     return {"spp": rows_spp, "reference_seconds": t_ref, "tessellation": rows_seg, "analytic_pair_seconds": t_an}
+
+
+def wavelength_error(design, content, cdp_mm: float = 750.0, resolution=(128, 74), spp: int = 64,
+                     samples=(1, 2, 4, 8), reference_samples: int = 16, pupil_mm: float = 3.0,
+                     diffraction: bool = True) -> dict:
+    """Error against run time of the wavelength nodes per primary of a spectral render.
+
+    The analytic display path (colour, diffraction unless turned off; ideal eye focused at
+    the CDP) at each count of ``samples`` nodes per primary against ``reference_samples``
+    nodes, all with the same seed: the film, pupil and wavelength samples are the same
+    numbers, so what is left is the wavelength quadrature's error (and the noise of which
+    node each ray's wavelength sample falls on). ``noise`` is the reference against itself
+    at another seed: the Monte Carlo error of one render at this spp. Returns ``{"samples":
+    [{samples, rel_rmse, seconds}], "noise", "reference_seconds"}``.
+    """
+    from ..ini.model import model_at_depth
+    from . import display_eye
+    from .analytic import ReverseOptics
+    from .content import scene_dict
+    from .display import DisplayLayout
+    from .elemental import elemental_images
+    from .eye import EyeSpec
+    from .focal_stack import INTEGRATOR, load_scene, render_passes
+    from .spectra import spectral
+
+    mi = mitsuba()
+    model = model_at_depth(design, 1000.0 / cdp_mm)
+    layout = DisplayLayout.from_model(model)
+    display = elemental_images(model, mi.load_dict(scene_dict(content)), layout)
+    fx, fy = model.state(0).fov_deg
+    scene = load_scene({"type": "scene", "display": layout.emitter_dict(display), "integrator": INTEGRATOR})
+
+    def run(k, seed):
+        passes = spectral(int(k))
+        keys = [display_eye.attach(ReverseOptics(model, 0, wavelengths=w,
+                                                 diffraction_pupil_mm=pupil_mm if diffraction else None))
+                for w in passes]
+        try:
+            jobs = [(scene, display_eye.sensor_dict(
+                EyeSpec("ideal", pupil_mm, cdp_mm, (fx, fy), tuple(resolution), wavelengths=w,
+                        diffraction=diffraction), key, spp, seed)) for w, key in zip(passes, keys)]
+            return render_passes(jobs, passes)
+        finally:
+            for key in keys:
+                display_eye.release(key)
+
+    ref, t_ref = run(reference_samples, 0)
+    other, _ = run(reference_samples, 1000)
+    rows = []
+    for k in samples:
+        img, secs = run(k, 0)
+        rows.append({"samples": int(k), "rel_rmse": relative_rmse(img, ref), "seconds": secs})
+    return {"samples": rows, "noise": relative_rmse(other, ref), "reference_seconds": t_ref}
