@@ -116,8 +116,16 @@ def profile_stats(lum: np.ndarray, px_arcmin: float, total: float | None = None)
     A = np.stack([np.ones(core.sum()), rc[core] ** 2, rc[core] ** 4], axis=1) * wts[:, None]
     coef = np.linalg.lstsq(A, ring[core] * wts, rcond=None)[0]
     top = float(coef[0]) if coef[0] > 0 else float(ring[:3].max())  # unit-energy PSF per pixel
+    # A PSF whose centre is not its peak (a defocused disc, dark in the middle): the maximum
+    # is the smoothed profile's, and the half maximum is found outside it.
+    sm5 = np.convolve(ring, np.ones(5) / 5.0, mode="same")
+    i_max = int(np.argmax(sm5))
+    ringed = True
+    if sm5[i_max] > 1.15 * top:
+        top = float(sm5[i_max])
+        ringed = False  # no central peak, so no first dark ring to speak of
     fwhm = None
-    below = np.nonzero(ring < 0.5 * top)[0]
+    below = i_max + np.nonzero(ring[i_max:] < 0.5 * top)[0]
     if len(below):
         i0 = int(below[0])
         band = np.arange(max(0, i0 - 8), min(len(ring), i0 + 8))
@@ -130,7 +138,7 @@ def profile_stats(lum: np.ndarray, px_arcmin: float, total: float | None = None)
     first_min = None
     # The first dark ring: the smoothed profile's minimum between 0.8 and 1.55 FWHM (an Airy
     # pattern's is at 1.22 λ/D = 1.18 FWHM, its first bright ring at 1.59 FWHM).
-    if fwhm is not None:
+    if fwhm is not None and ringed:
         win = max(1, int(round(0.1 * fwhm / dr_)))
         sm = np.convolve(ring, np.ones(win) / win, mode="same")
         sel = np.nonzero((rc >= 0.8 * fwhm) & (rc <= 1.55 * fwhm))[0]
