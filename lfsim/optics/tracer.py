@@ -161,15 +161,17 @@ class SequentialTracer:
         return RayState(T.Array3(*c[:3]), T.Array3(*c[3:]))
 
     # ----------------------------------------------------------- parameters
-    def params(self, wavelength_nm: float | None = None, values=None):
-        """Packed parameter array (one block) at ``wavelength_nm``.
+    def params(self, wavelength_nm=None, values=None):
+        """Packed parameter array at ``wavelength_nm``: one block, or one block per wavelength
+        of a sequence (a spectral render's nodes, picked per ray with ``trace(block=...)``).
 
         ``values`` (numpy, length ``n_params`` or a multiple) overrides the
         design values, e.g. for finite differences or several blocks.
         """
         if values is None:
             lam = wavelength_nm if wavelength_nm is not None else self.system.primary_wavelength_nm
-            values = self.vector.values(lam)
+            values = (np.concatenate([self.vector.values(v) for v in lam]) if np.ndim(lam)
+                      else self.vector.values(lam))
         values = np.asarray(values, dtype=np.float64).ravel()
         if values.size % self.n_params:
             raise ValueError(

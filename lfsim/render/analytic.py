@@ -79,8 +79,7 @@ class ReverseOptics:
 
     def params(self):
         if self._P is None:
-            self._P = self.tracer.params(values=np.concatenate(
-                [self.tracer.vector.values(v) for v in self.wavelengths.nm]))
+            self._P = self.tracer.params(list(self.wavelengths.nm))
         return self._P
 
     def to_global(self, o_local, d_local):

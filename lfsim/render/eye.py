@@ -263,14 +263,10 @@ def _sensor_class(mi):
             self.z_xp_rev = dr.opaque(mi.Float, float(z_lp - table.z_xp))
             self.z_lp_eye = dr.opaque(mi.Float, float(z_lp - eye_origin_depth(lam)))
             self.tracer = SequentialTracer(arizona_reverse_system(self.accommodation, iris), "float32")
-            if self.waves is None:
-                self.P = self.tracer.params(lam)
-            else:
-                # One parameter block per wavelength node (ocular media dispersion); the
-                # retina, its pixel mapping and the exit-pupil disk stay the reference
-                # wavelength's: the retina does not move with colour, the image does.
-                self.P = self.tracer.params(values=np.concatenate(
-                    [self.tracer.vector.values(v) for v in self.waves.nm]))
+            # Spectral: one parameter block per wavelength node (ocular media dispersion); the
+            # retina, its pixel mapping and the exit-pupil disk stay the reference
+            # wavelength's: the retina does not move with colour, the image does.
+            self.P = self.tracer.params(lam if self.waves is None else list(self.waves.nm))
 
         # -------------------------------------------------------- film → angles
         def _tangents(self, s2, du=0.0, dv=0.0):

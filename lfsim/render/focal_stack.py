@@ -242,10 +242,12 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None):
     t_ei = time.perf_counter() - t0
     if bar:
         bar.close()
+    passes = spec.wavelengths(model.lam, content.primaries)
+    # Diffraction on the analytic path only (the mesh path's BSDFs bend no ray by an aperture).
+    diffraction = spec.diffraction and spec.optics == "analytic"
     base_meta = {"design": design.path or design.name, "content": content.path, "cdp_mm": spec.cdp_mm,
-                 "optics": spec.optics, "diffraction": int(spec.diffraction and spec.optics == "analytic"),
-                 "wavelengths_nm": ";".join(",".join(f"{v:.2f}" for v in w.nm)
-                                            for w in spec.wavelengths(model.lam, content.primaries)),
+                 "optics": spec.optics, "diffraction": int(diffraction),
+                 "wavelengths_nm": ";".join(",".join(f"{v:.2f}" for v in w.nm) for w in passes),
                  "pupil_mm": spec.pupil_diameter_mm, "eye": spec.eye_model, "seed": spec.seed,
                  "fov_x_deg": fx, "fov_y_deg": fy}
     write_exr(out / "elemental_images.exr", display, dict(base_meta, kind="elemental_images",
@@ -255,11 +257,8 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None):
 
     if spec.optics not in ("analytic", "mesh"):
         raise ValueError(f"optics = {spec.optics!r}: expected 'analytic' or 'mesh'")
-    passes = spec.wavelengths(model.lam, content.primaries)
     spectral = passes[0].channel is not None
-    log(f"wavelengths: {describe(passes)}")
-    # Diffraction on the analytic path only (the mesh path's BSDFs bend no ray by an aperture).
-    diffraction = spec.diffraction and spec.optics == "analytic"
+    log(f"wavelengths: {describe(passes)}; diffraction {'on' if diffraction else 'off'}")
     keys = [attach(ReverseOptics(model, 0, cells=spec.mla_cells, wavelengths=w,
                                  diffraction_pupil_mm=spec.pupil_diameter_mm if diffraction else None))
             for w in passes]
