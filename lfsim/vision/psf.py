@@ -54,6 +54,7 @@ class PsfSpec:
     spp: int = 1024
     seed: int = 0
     wavelength_samples: int = 4
+    point_arcmin: float = POINT_ARCMIN  # natural view: the point's side
 
 
 def _distance_mm(diopters: float) -> float:
@@ -185,90 +186,132 @@ def point_display(model, layout, depth_d: float) -> tuple[np.ndarray, int]:
     return np.repeat(img.reshape(layout.height, layout.width)[..., None], 3, axis=-1), shown
 
 
+class PsfRenderer:
+    """A point at one depth set up once (the display image, the optics, the loaded scene),
+    rendered for any eye focus: :meth:`render`. ``reference_nm``: the wavelength at which the
+    Arizona eye's accommodation is solved for the focus distance (the ideal eye has none)."""
+
+    def __init__(self, design, spec: PsfSpec, log=print, reference_nm: float = 550.0):
+        from ..design.content import content_from_dict
+        from ..ini.model import model_at_depth
+        from ..render import mitsuba
+        from ..render.analytic import ReverseOptics
+        from ..render.content import scene_dict
+        from ..render.display import DisplayLayout
+        from ..render.display_eye import attach
+        from ..render.focal_stack import INTEGRATOR, load_scene
+        from ..render.spectra import describe, monochrome, spectral
+
+        if spec.view not in VIEWS:
+            raise ValueError(f"view = {spec.view!r}: expected one of {', '.join(VIEWS)}")
+        mitsuba()
+        self.spec, self.reference_nm, self.keys = spec, float(reference_nm), []
+        self.doc = {"view": spec.view, "depth_d": spec.depth_d, "eye": spec.eye, "pupil_mm": spec.pupil_mm,
+                    "diffraction": spec.diffraction, "spp": spec.spp, "seed": spec.seed}
+        if spec.view == "display":
+            ini = design.ini
+            if ini is None:
+                raise ValueError(f"{design.path}: --view display needs an InI design (an [ini] section)")
+            cdp_d = spec.cdp_d if spec.cdp_d is not None else float(ini.cdp_diopters[len(ini.cdp_diopters) // 2])
+            model = model_at_depth(design, cdp_d)
+            layout = DisplayLayout.from_model(model, 0)
+            aperture = float(min(model.arr.pitch))
+            self.doc["cdp_d"] = cdp_d
+            design_nm = model.lam
+        else:
+            aperture, design_nm = spec.pupil_mm, 550.0
+        self.passes = (monochrome(spec.wavelength_nm) if spec.wavelength_nm is not None
+                       else spectral(spec.wavelength_samples))
+        self.doc["wavelengths_nm"] = [list(p.nm) for p in self.passes]
+        self.doc["design_wavelength_nm"] = design_nm
+        self.fov = spec.fov_arcmin or auto_fov(spec, aperture)
+        self.N = int(spec.resolution)
+        self.px = self.fov / self.N
+        self.doc.update(fov_arcmin=self.fov, resolution=self.N, pixel_arcmin=self.px)
+        self.log = log
+        self.log(f"psf: {spec.view} view, point at {spec.depth_d:g} D, eye ({spec.eye}, {spec.pupil_mm:g} mm), "
+                 f"{describe(self.passes)}, diffraction {'on' if spec.diffraction else 'off'}, "
+                 f"{self.N}x{self.N} px over {self.fov:.1f} arcmin")
+        if spec.view == "natural":
+            L = _distance_mm(spec.depth_d)
+            dist = 1e6 if math.isinf(L) else L
+            a = 0.5 * dist * math.tan(math.radians(spec.point_arcmin / 60.0))
+            content = content_from_dict({"objects": [{"corners": [[-a, -a, -dist], [a, -a, -dist], [-a, a, -dist]],
+                                                      "texture": {"type": "constant"}}]}, "<psf point>")
+            self.scene = load_scene(dict(scene_dict(content), integrator=INTEGRATOR))
+        else:
+            display, shown = point_display(model, layout, spec.depth_d)
+            self.doc["elemental_images_showing_the_point"] = shown
+            if shown == 0:
+                raise ValueError(f"depth {spec.depth_d:g} D: no elemental image of {design.path} shows a point there")
+            pupil = spec.pupil_mm if spec.diffraction else None
+            self.keys = [attach(ReverseOptics(model, 0, wavelengths=w, diffraction_pupil_mm=pupil))
+                         for w in self.passes]
+            self.scene = load_scene({"type": "scene", "display": layout.emitter_dict(display),
+                                     "integrator": INTEGRATOR})
+
+    def close(self) -> None:
+        from ..render.display_eye import release
+
+        for key in self.keys:
+            release(key)
+        self.keys = []
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def render_image(self, focus_d: float) -> tuple[np.ndarray, float]:
+        """The PSF image (H, W, 3) float32 with the eye focused at ``focus_d``, and its render seconds."""
+        from ..render.display_eye import sensor_dict as display_sensor
+        from ..render.eye import EyeSpec
+        from ..render.focal_stack import render, render_passes
+
+        spec, N, fov = self.spec, self.N, self.fov
+
+        def eye_for(w):
+            return EyeSpec(spec.eye, spec.pupil_mm, _distance_mm(focus_d), (fov / 60.0, fov / 60.0), (N, N),
+                           wavelength_nm=self.reference_nm, wavelengths=w, diffraction=spec.diffraction)
+
+        if spec.view == "natural":
+            if spec.eye == "ideal" and not spec.diffraction:
+                # Dispersion-free and geometric: the same image at every wavelength.
+                img, secs = render(self.scene, eye_for(None).sensor_dict(None, spec.spp, spec.seed))
+            else:
+                jobs = [(self.scene, eye_for(w).sensor_dict(None, spec.spp, spec.seed)) for w in self.passes]
+                img, secs = render_passes(jobs, self.passes)
+        else:
+            jobs = [(self.scene, display_sensor(eye_for(w), key, spec.spp, spec.seed))
+                    for w, key in zip(self.passes, self.keys)]
+            img, secs = render_passes(jobs, self.passes)
+        if not np.all(np.isfinite(img)):
+            raise FloatingPointError("non-finite pixels in the PSF image")
+        return img, secs
+
+    def luminance(self, img: np.ndarray) -> np.ndarray:
+        return img.astype(np.float64) @ LUMA
+
+    def render(self, focus_d: float) -> tuple[np.ndarray, dict]:
+        """Render with the eye focused at ``focus_d``; returns ``(image, figures and settings)``."""
+        t0 = time.perf_counter()
+        img, secs = self.render_image(focus_d)
+        # The natural view's point has a known energy: radiance 1 over its solid angle, in pixels.
+        total = (self.spec.point_arcmin / self.px) ** 2 if self.spec.view == "natural" else None
+        doc = dict(self.doc, focus_d=focus_d)
+        doc.update(profile_stats(self.luminance(img), self.px, total))
+        doc["render_s"] = round(secs, 3)
+        doc["total_s"] = round(time.perf_counter() - t0, 3)
+        return img, doc
+
+
 def render_psf(design, spec: PsfSpec, log=print) -> tuple[np.ndarray, dict]:
     """Render the PSF; returns ``(image (H, W, 3) float32, figures and settings)``."""
-    from ..design.content import content_from_dict
-    from ..ini.model import model_at_depth
-    from ..render import mitsuba
-    from ..render.analytic import ReverseOptics
-    from ..render.content import scene_dict
-    from ..render.display import DisplayLayout
-    from ..render.display_eye import attach, release
-    from ..render.display_eye import sensor_dict as display_sensor
-    from ..render.eye import EyeSpec
-    from ..render.focal_stack import INTEGRATOR, load_scene, render, render_passes
-    from ..render.spectra import describe, monochrome, spectral
-
-    if spec.view not in VIEWS:
-        raise ValueError(f"view = {spec.view!r}: expected one of {', '.join(VIEWS)}")
-    mitsuba()
     t0 = time.perf_counter()
-    focus_mm = _distance_mm(spec.focus_d)
-    doc = {"view": spec.view, "depth_d": spec.depth_d, "focus_d": spec.focus_d, "eye": spec.eye,
-           "pupil_mm": spec.pupil_mm, "diffraction": spec.diffraction, "spp": spec.spp, "seed": spec.seed}
-    if spec.view == "display":
-        ini = design.ini
-        if ini is None:
-            raise ValueError(f"{design.path}: --view display needs an InI design (an [ini] section)")
-        cdp_d = spec.cdp_d if spec.cdp_d is not None else float(ini.cdp_diopters[len(ini.cdp_diopters) // 2])
-        model = model_at_depth(design, cdp_d)
-        layout = DisplayLayout.from_model(model, 0)
-        aperture = float(min(model.arr.pitch))
-        doc["cdp_d"] = cdp_d
-        design_nm = model.lam
-    else:
-        aperture, design_nm = spec.pupil_mm, 550.0
-    passes = (monochrome(spec.wavelength_nm) if spec.wavelength_nm is not None
-              else spectral(spec.wavelength_samples))
-    doc["wavelengths_nm"] = [list(p.nm) for p in passes]
-    fov = spec.fov_arcmin or auto_fov(spec, aperture)
-    N = int(spec.resolution)
-    px = fov / N
-    doc.update(fov_arcmin=fov, resolution=N, pixel_arcmin=px)
-    log(f"psf: {spec.view} view, point at {spec.depth_d:g} D, eye ({spec.eye}, {spec.pupil_mm:g} mm) focused at "
-        f"{spec.focus_d:g} D, {describe(passes)}, diffraction {'on' if spec.diffraction else 'off'}, "
-        f"{N}x{N} px over {fov:.1f} arcmin")
-
-    def eye_for(w):
-        return EyeSpec(spec.eye, spec.pupil_mm, focus_mm, (fov / 60.0, fov / 60.0), (N, N), wavelengths=w,
-                       diffraction=spec.diffraction)
-
-    if spec.view == "natural":
-        L = _distance_mm(spec.depth_d)
-        dist = 1e6 if math.isinf(L) else L
-        a = 0.5 * dist * math.tan(math.radians(POINT_ARCMIN / 60.0))
-        content = content_from_dict({"objects": [{"corners": [[-a, -a, -dist], [a, -a, -dist], [-a, a, -dist]],
-                                                  "texture": {"type": "constant"}}]}, "<psf point>")
-        scene = load_scene(dict(scene_dict(content), integrator=INTEGRATOR))
-        if spec.eye == "ideal" and not spec.diffraction:
-            # Dispersion-free and geometric: the same image at every wavelength.
-            img, secs = render(scene, eye_for(None).sensor_dict(None, spec.spp, spec.seed))
-        else:
-            jobs = [(scene, eye_for(w).sensor_dict(None, spec.spp, spec.seed)) for w in passes]
-            img, secs = render_passes(jobs, passes)
-    else:
-        display, shown = point_display(model, layout, spec.depth_d)
-        doc["elemental_images_showing_the_point"] = shown
-        if shown == 0:
-            raise ValueError(f"depth {spec.depth_d:g} D: no elemental image of {design.path} shows a point there")
-        pupil = spec.pupil_mm if spec.diffraction else None
-        keys = [attach(ReverseOptics(model, 0, wavelengths=w, diffraction_pupil_mm=pupil)) for w in passes]
-        try:
-            scene = load_scene({"type": "scene", "display": layout.emitter_dict(display), "integrator": INTEGRATOR})
-            jobs = [(scene, display_sensor(eye_for(w), key, spec.spp, spec.seed)) for w, key in zip(passes, keys)]
-            img, secs = render_passes(jobs, passes)
-        finally:
-            for key in keys:
-                release(key)
-    if not np.all(np.isfinite(img)):
-        raise FloatingPointError("non-finite pixels in the PSF image")
-    lum = img.astype(np.float64) @ LUMA
-    # The natural view's point has a known energy: radiance 1 over its solid angle, in pixels.
-    total = (POINT_ARCMIN / px) ** 2 if spec.view == "natural" else None
-    doc.update(profile_stats(lum, px, total))
-    doc["render_s"] = round(secs, 3)
+    with PsfRenderer(design, spec, log=log) as r:
+        img, doc = r.render(spec.focus_d)
     doc["total_s"] = round(time.perf_counter() - t0, 3)
-    doc["design_wavelength_nm"] = design_nm
     return img, doc
 
 
