@@ -112,12 +112,13 @@ def test_view_defaults_have_one_owner(scenes, tmp_path, capsys):
 
 
 def test_python_api_writes_what_the_verb_writes_even_at_a_small_resolution(scenes, tmp_path):
-    """render.focal_stack() runs the focus-cue analysis and writes index.json with it,
+    """vision.focus_cues.focal_stack() runs the focus-cue analysis and writes index.json with it,
     as `lfsim focal-stack` does; a 48x27 image (fewer columns than 24 bands of 3)
     gets fewer bands instead of failing."""
     import lfsim
     from lfsim.design.content import load_content
-    from lfsim.render.focal_stack import FocalStackSpec, focal_stack
+    from lfsim.render.focal_stack import FocalStackSpec
+    from lfsim.vision.focus_cues import focal_stack
 
     design = lfsim.load(scenes / "ini_ideal.toml")
     content = load_content(scenes / "fig9_wall.toml")

@@ -13,7 +13,8 @@ from .common import DEFAULT_CONTENT, InputError, _add_set, _check_seed, _dump, _
 def cmd_focal_stack(args) -> int:
     from pathlib import Path
 
-    from ..render.focal_stack import FocalStackSpec, focal_stack
+    from ..render.focal_stack import FocalStackSpec
+    from ..vision.focus_cues import focal_stack
 
     content, design_path, design, focus, cdp, pupil = _view_of(args, "lfsim focal-stack")
     if args.spp < 1:

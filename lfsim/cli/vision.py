@@ -123,7 +123,8 @@ def cmd_accommodation(args) -> int:
           f"({doc['metric']})")
     for p in doc["points"]:
         print(f"  target {p['target_d']:5.2f} D: display {p['response_d']:5.2f} D, natural view "
-              f"{p['natural_response_d']:5.2f} D")
+              f"{p['natural_response_d']:5.2f} D"
+              + ("  (display peak at the sweep's end: widen --margin-d)" if p["at_sweep_edge"] else ""))
     if args.out is not None:
         print(f"wrote {args.out}/accommodation.json, accommodation.png")
     return 0

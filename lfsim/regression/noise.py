@@ -46,7 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 
 LUMA = np.array([0.2126, 0.7152, 0.0722])
-#: Difference-of-Gaussians band pass (px), the focus-cue analysis' (lfsim.analysis.focus_cues).
+#: Difference-of-Gaussians band pass (px), the focus-cue analysis' (lfsim.vision.focus_cues).
 BAND_SIGMAS = (1.0, 2.5)
 
 

@@ -53,7 +53,7 @@ class FocalStackSpec:
     mla_cells: str = "per_surface"  # "fixed": baffled lenslet cells (an ideal aperture array)
     optics: str = "analytic"  # "mesh": Mitsuba meshes of the optics, path-traced
     tessellation: float = 1.0  # mesh density, × lfsim.render.meshes defaults
-    focus_cues: bool = True  # the focus-cue analysis (focus_cues.json/png, index.json's "focus_cues")
+    focus_cues: bool = True  # the focus-cue analysis (lfsim.vision.focus_cues.focal_stack)
     wavelength_nm: float | None = None  # None: spectral (wavelength_samples per primary); else monochrome
     wavelength_samples: int = 4  # wavelength nodes per display primary (lfsim.render.spectra)
     diffraction: bool = True  # the views' apertures and the eye pupil diffract (lfsim.render.diffraction)
@@ -179,11 +179,13 @@ def estimate(spec: FocalStackSpec, resolution: tuple[int, int], display_px: int)
 
 
 def focal_stack(design, content, out_dir, spec: FocalStackSpec | None = None, progress: bool = False,
-                log=print, limits=None) -> tuple[dict, dict]:
-    """Render a focal stack and analyse its focus cues; writes ``out_dir`` (what
-    ``lfsim focal-stack`` writes: the EXRs and PNGs, the contact sheet,
-    ``focus_cues.json``/``.png`` unless ``spec.focus_cues`` is off, and
-    ``index.json`` last).
+                log=print, limits=None, analyses=()) -> tuple[dict, dict]:
+    """Render a focal stack; writes ``out_dir`` (the EXRs and PNGs, the contact sheet, what
+    each of ``analyses`` writes, and ``index.json`` last).
+
+    ``analyses``: ``(name, f)`` pairs, ``f(stack, content_scene, out) -> entry``, run on the
+    finished stack inside the output folder, each entry kept as ``index.json``'s ``name``
+    (the focus-cue analysis, :func:`lfsim.vision.focus_cues.focal_stack`, is one).
 
     Returns ``(index, stack)``: the ``index.json`` document and the images in
     memory, ``stack = {"fov_deg", "images": {(kind, focus_mm): (H, W, 3)},
@@ -199,10 +201,10 @@ def focal_stack(design, content, out_dir, spec: FocalStackSpec | None = None, pr
     from ..fileio import atomic_dir
 
     with atomic_dir(out_dir, "index.json") as tmp:
-        return _focal_stack(design, content, tmp, spec, progress, log, limits)
+        return _focal_stack(design, content, tmp, spec, progress, log, limits, analyses)
 
 
-def _focal_stack(design, content, out_dir, spec, progress, log, limits=None):
+def _focal_stack(design, content, out_dir, spec, progress, log, limits=None, analyses=()):
     from .. import budget
     from ..fileio import write_json
     from ..ini.model import model_at_depth
@@ -359,14 +361,8 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None):
            "contact_sheet": sheet}
     stack = {"fov_deg": (fx, fy), "reference": reference, "content_scene": content_scene,
              "images": {(k, f): v for f, pair in by_focus.items() for k, v in pair.items()}}
-    if spec.focus_cues:
-        from .focus_cues import analyze
-
-        cues = analyze(stack, content_scene, out)
-        keep = ("kind", "focus_mm", "focus_diopters", "sharpest_diopters", "offset_diopters", "sharpness_peak",
-                "sharpness_far_mean")
-        doc["focus_cues"] = {"json": "focus_cues.json", "png": cues["plot"],
-                             "sharpest": [{k: r[k] for k in keep} for r in cues["results"]]}
+    for name, fn in analyses:
+        doc[name] = fn(stack, content_scene, out)
     doc["total_s"] = round(time.perf_counter() - t_all, 3)
     write_json(out / "index.json", doc)
     return doc, stack

@@ -259,7 +259,7 @@ def run_sweep(design: Design, out_dir, axes: dict[str, np.ndarray], fixed: dict[
 def _write(design, out, raw, path, axes, keys, fixed, reference, points, seconds, where, render, render_spec,
            content) -> dict:
     if render:
-        from ..render.focal_stack import focal_stack
+        from ..vision.focus_cues import focal_stack
 
         for p in points:
             if p["error"]:

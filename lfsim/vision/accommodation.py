@@ -157,6 +157,9 @@ def response(design, spec: AccommodationSpec, log=print) -> dict:
             nat = curve(design, spec, "natural", float(D), cdp_d, states, progress=b.update)
             points.append({"target_d": float(D), "response_d": peak(states, disp),
                            "natural_response_d": peak(states, nat),
+                           # A peak on the sweep's end: the maximum may lie beyond it (widen --margin-d).
+                           "at_sweep_edge": bool(np.argmax(disp) in (0, len(states) - 1)),
+                           "natural_at_sweep_edge": bool(np.argmax(nat) in (0, len(states) - 1)),
                            "curve": [[float(a), float(s)] for a, s in zip(states, disp)],
                            "natural_curve": [[float(a), float(s)] for a, s in zip(states, nat)]})
     finally:

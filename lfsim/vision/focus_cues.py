@@ -25,7 +25,7 @@ LUMA = np.array([0.2126, 0.7152, 0.0722])
 def column_depths(content_scene, fov_deg, width: int, height: int, rows: int = 9) -> np.ndarray:
     """Distance (mm, along the line of sight −z) of the content seen in each image column
     (median over ``rows`` rows across the image; NaN where nothing is hit)."""
-    from . import mitsuba
+    from ..render import mitsuba
 
     mi = mitsuba()
     fx, fy = (math.radians(v) for v in fov_deg)
@@ -170,3 +170,25 @@ def plot(doc: dict, path) -> str:
     save_figure(fig, path, dpi=110)
     plt.close(fig)
     return "focus_cues.png"
+
+
+def index_entry(stack: dict, content_scene, out) -> dict:
+    """Run :func:`analyze` on a focal stack being written to ``out``; the ``focus_cues``
+    entry of its ``index.json`` (an analysis for :func:`lfsim.render.focal_stack.focal_stack`)."""
+    cues = analyze(stack, content_scene, out)
+    keep = ("kind", "focus_mm", "focus_diopters", "sharpest_diopters", "offset_diopters", "sharpness_peak",
+            "sharpness_far_mean")
+    return {"json": "focus_cues.json", "png": cues["plot"],
+            "sharpest": [{k: r[k] for k in keep} for r in cues["results"]]}
+
+
+def focal_stack(design, content, out_dir, spec=None, **kw):
+    """:func:`lfsim.render.focal_stack.focal_stack` with the focus-cue analysis
+    (``focus_cues.json``/``.png`` and ``index.json``'s ``focus_cues``) unless
+    ``spec.focus_cues`` is off."""
+    from ..render.focal_stack import FocalStackSpec
+    from ..render.focal_stack import focal_stack as render_stack
+
+    spec = spec or FocalStackSpec()
+    analyses = [("focus_cues", index_entry)] if spec.focus_cues else []
+    return render_stack(design, content, out_dir, spec, analyses=analyses, **kw)
