@@ -124,7 +124,7 @@ def test_watertight_solids(coaxial, scenes):
     assert M.open_edge_count(lens.meshes[:2]) > 0
     ff = lfsim.load(scenes / "ini_freeform.toml")
     mf = M.SurfaceModel(ff)
-    prism = M.prism_solid(mf, [15, 16, 17, 18], 12, footprints=OS.footprints(ff, mf))
+    prism = M.prism_solid(mf, [16, 17, 18, 19], 12, footprints=OS.footprints(ff, mf))
     assert prism.is_watertight()
     assert [m.name for m in prism.meshes if m.role == "face"].count("S2") == 1  # S4 = S2 emitted once
 
@@ -133,7 +133,7 @@ def test_components_only_what_is_declared(scenes):
     names = ("ini_coaxial", "ini_freeform", "ini_ideal", "direct_view", "cooke_triplet")
     kinds = {n: {c.kind for c in M.components(lfsim.load(scenes / f"{n}.toml").system)} for n in names}
     assert kinds["ini_coaxial"] == {"lenslet_array", "lens", "paraxial"}
-    assert kinds["ini_freeform"] == {"lenslet_array", "lens", "paraxial", "prism"}
+    assert kinds["ini_freeform"] == {"lenslet_array", "aperture_array", "lens", "paraxial", "prism"}
     assert kinds["ini_ideal"] == {"paraxial_array", "paraxial"}
     assert kinds["direct_view"] == {"lenslet_array"}
     assert kinds["cooke_triplet"] == {"lens"}
