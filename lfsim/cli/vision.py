@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 import sys
 
-from .common import DEFAULT_CONTENT, InputError, _add_set, _check_seed, _dump, _fmt, _load_design
+from .common import DEFAULT_CONTENT, InputError, _add_set, _check_seed, _dump, _float_list, _fmt, _load_design
 
 
 def _default_design(args):
@@ -56,16 +56,6 @@ def cmd_psf(args) -> int:
     return 0
 
 
-def _floats(flag, text, n=None):
-    try:
-        v = [float(x) for x in str(text).split(",") if x.strip()]
-    except ValueError:
-        raise InputError(f"{flag} = {text!r}: expected numbers separated by commas") from None
-    if not v or (n is not None and len(v) != n) or not all(math.isfinite(x) for x in v):
-        raise InputError(f"{flag} = {text!r}: expected {n or 'one or more'} finite numbers separated by commas")
-    return v
-
-
 def _common_checks(args) -> None:
     if not (math.isfinite(args.pupil_mm) and 0 < args.pupil_mm <= 10):
         raise InputError(f"--pupil-mm = {args.pupil_mm!r}: must be in (0, 10] mm")
@@ -86,11 +76,11 @@ def cmd_accommodation(args) -> int:
     from ..fileio import check_writable
     from ..vision.accommodation import AccommodationSpec, response, write
 
-    depths = [_diopters("--depths-d", v) for v in _floats("--depths-d", args.depths_d)]
+    depths = [_diopters("--depths-d", v) for v in _float_list(args.depths_d, "--depths-d")]
     cdp = _diopters("--cdp-d", args.cdp_d, allow_none=True)
     _common_checks(args)
-    band = _floats("--band-cpd", args.band_cpd, 2)
-    if not 0 < band[0] < band[1] <= 60:
+    band = _float_list(args.band_cpd, "--band-cpd")
+    if len(band) != 2 or not 0 < band[0] < band[1] <= 60:
         raise InputError(f"--band-cpd = {args.band_cpd!r}: must be LO,HI with 0 < LO < HI <= 60 cpd")
     if not (math.isfinite(args.step_d) and 0.005 <= args.step_d <= 1):
         raise InputError(f"--step-d = {args.step_d!r}: must be in 0.005..1 D")
