@@ -440,18 +440,3 @@ def test_bad_plugin_property_and_solver_input(mi):
 def test_register_is_idempotent(mi):
     assert eye.register() is mi
     assert eye.register() is mi
-
-
-def test_sampler_is_multijitter_where_it_keeps_the_sample_count():
-    import math
-
-    import mitsuba as mi
-
-    from lfsim.render.eye import register, sampler_type
-
-    register()
-    for n in (1, 4, 16, 50, 63, 64, 100, 256):
-        t = sampler_type(n)
-        got = mi.load_dict({"type": "multijitter", "sample_count": n}).sample_count() if t == "multijitter" else n
-        assert got == n, (n, t)
-        assert (t == "multijitter") == (math.isqrt(n) * -(-n // math.isqrt(n)) == n)

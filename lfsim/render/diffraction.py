@@ -16,10 +16,13 @@ pattern's dark rings and its encircled energy.
   (99.87 % of the energy; the far tail beyond is left out and the PSF
   renormalized), its azimuth uniformly.
 
-The random numbers come from the Tiny Encryption Algorithm on the bits of
-the ray's film and pupil samples (``mi.sample_tea_float32``): the kicks are
-independent of the samples that place the ray, and a render stays a pure
-function of its seed.
+The random numbers (:func:`kick_samples`) are the next two dimensions of the
+sensor's own sampler during a render: with the ``multijitter`` sampler the
+kicks are stratified per pixel like the film, pupil and wavelength samples,
+independently of them (each sampler dimension has its own permutation).
+Outside a render (a sensor sampled directly), they come from the Tiny
+Encryption Algorithm on the bits of the ray's film and pupil samples
+(:func:`random_pair`). Either way a render is a pure function of its seed.
 """
 
 from __future__ import annotations
@@ -66,6 +69,19 @@ def random_pair(mi, s2, s3, salt: int = 0):
     v0 = b[0] ^ (b[2] * 0x9E3779B9)
     v1 = b[1] ^ (b[3] * 0x85EBCA6B) ^ salt
     return mi.sample_tea_float32(v0, v1, 8), mi.sample_tea_float32(v1 ^ 0x68E31DA4, v0, 8)
+
+
+def kick_samples(mi, sensor, s2, s3, active=True, salt: int = 0):
+    """Two uniform numbers per ray for a diffraction kick: the next 2D dimension of
+    ``sensor``'s sampler when a render has seeded it for this wavefront (stratified per
+    pixel), else :func:`random_pair` (TEA) of the film and pupil samples."""
+    import drjit as dr
+
+    sampler = sensor.sampler()
+    if sampler is not None and sampler.wavefront_size() == dr.width(s2):
+        u = sampler.next_2d(active)
+        return u.x, u.y
+    return random_pair(mi, s2, s3, salt)
 
 
 class AiryKick:

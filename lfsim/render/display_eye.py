@@ -86,9 +86,9 @@ def _sensor_class(mi):
             d = T.Array3(ray.d.x, ray.d.y, ray.d.z)
             kick_u = None
             if self.diffraction:
-                from .diffraction import random_pair
+                from .diffraction import kick_samples
 
-                kick_u = random_pair(mi, sample2, sample3, salt=0x5BD1E995)
+                kick_u = kick_samples(mi, self, sample2, sample3, active, salt=0x5BD1E995)
             p, dd, ok = self.optics.to_display(o, d, block=self.eye.node(time), kick_u=kick_u)
             ok = ok & (dd.z < 0)
             start = p - LAUNCH_GAP * dd

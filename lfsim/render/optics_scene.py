@@ -377,7 +377,7 @@ _CATEGORY_BY_TYPE = {
                              "irradiancemeter", "distant", "batch")},
     **{t: "texture" for t in ("bitmap", "checkerboard", "mesh_attribute", "volume")},
     **{t: "film" for t in ("hdrfilm", "specfilm")},
-    **{t: "sampler" for t in ("independent", "stratified", "multijitter", "orthogonal", "ldsampler")},
+    **{t: "sampler" for t in ("independent", "stratified", "multijitter", "orthogonal", "ldsampler", "lfsim_sobol")},
     **{t: "rfilter" for t in ("box", "gaussian", "tent", "lanczos", "mitchell", "catmullrom")},
     **{t: "integrator" for t in ("path", "direct", "volpath", "volpathmis", "prb", "prb_basic",
                                  "direct_projective", "prb_projective", "aov", "moment", "depth",
