@@ -17,7 +17,10 @@ machine. The knobs, by stage:
   (all lenslets for the stride, which is exact);
 * render (:func:`lfsim.render.accuracy.error_vs_time`): samples per pixel of
   the analytic path against a high-spp render, and the mesh tessellation
-  against the analytic path with the same eye rays;
+  against the analytic path with the same eye rays; the wavelength nodes per
+  primary (:func:`lfsim.render.accuracy.wavelength_error`); the retinal
+  cameras' sampler against Mitsuba's, at the default focal stack's size
+  (:func:`lfsim.render.accuracy.sampler_noise`);
 * eye (:func:`lfsim.render.eye_models.solve_accommodation`): the Arizona eye's
   accommodation solve (criterion, minimizer tolerance, pupil rings) against a
   tight solve.
@@ -431,12 +434,49 @@ def measure_render(scenes: Path, quick: bool, log) -> list[Knob]:
                        f"{wname}, CDP and focus 750 mm, ideal eye with a 3 mm pupil. Seed-to-seed noise of one "
                        f"render: {wd['noise']:.3f} RMSE / mean. The nodes cost nothing: a ray traces one "
                        "wavelength whatever their number.")
+    # Sampler of the retinal cameras: stratification of film, pupil, wavelength and diffraction.
+    from lfsim.render.accuracy import sampler_noise
+    from lfsim.render.eye import sampler_type
+
+    sres = (48, 29) if quick else (512, 309)
+    samplers = ("independent", "lfsim_sobol") if quick else ("independent", "multijitter", "lfsim_sobol")
+    sspps = (4, 16) if quick else (16, spp_default, 256)
+    s_default = (sampler_type(spp_default), spp_default if not quick else 16)
+    sampler = Knob("sampler", "render", "Sampler of the retinal cameras (stratification)", "sampler, spp",
+                   ["RMSE / mean"], "the converged image: RMS of two seeds' difference / √2 (the estimators "
+                   "are unbiased)", f"one {sres[0]}×{sres[1]} px image in colour (three passes), kernels "
+                   "compiled before", s_default,
+                   f"`sampler_type()` (lfsim/render/eye.py) at `lfsim focal-stack --spp {spp_default}`",
+                   [Target(0, 0.02, "2 %: the goal for the default focal stack's images, to be reached in "
+                           "≤ 60 s for the whole stack on 2 cores (`benchmarks/focal_stack_noise.py` "
+                           "measures the stack)")])
+    sname = "ini_ideal"
+    sdesign = _reduced(scenes / f"{sname}.toml", 5, 3) if quick else lfsim.load(scenes / f"{sname}.toml")
+    log(f"  render: samplers on {sname}")
+    sd = sampler_noise(sdesign, content, samplers=samplers, spps=sspps, resolution=sres,
+                       kinds=("display",) if quick else ("display", "natural"),
+                       diffraction=(True,) if quick else (True, False))
+    for r in sd["rows"]:
+        if r["kind"] == "natural" and not r["diffraction"]:
+            continue
+        series = f"{r['kind']}, {'diffraction' if r['diffraction'] else 'geometric'}"
+        sampler.add(series, (r["sampler"], r["spp"]), [r["rel_rmse"]], r["seconds"],
+                    label=f"{r['sampler']}, {r['spp']}")
+    sampler.extra["line_by_setting_part"] = 0
+    sampler.notes.append(
+        f"Scene: the default focal stack's middle image ({'5 × 3 lenslets of ' if quick else ''}{sname}, the "
+        "Fig. 9 wall, CDP 750 mm, ideal eye with a 3 mm pupil focused at 1000 mm; colour with 4 wavelength "
+        "nodes per primary). Samplers: Mitsuba's `independent` and `multijitter` (film, pupil and wavelength "
+        "each stratified in their own 2D pattern, paired at random) and lfsim's `lfsim_sobol` "
+        "(lfsim/render/sobol.py: Owen-scrambled Sobol points, stratified jointly over film, pupil, wavelength "
+        "and the diffraction kick). \"geometric\": `--no-diffraction`. The diffraction kicks are drawn from "
+        "the same sampler, so every sampler stratifies them as it stratifies the rest.")
     extent = "5 × 3 lenslets of each design" if quick else "each design"
     for kn in (spp, tess):
         kn.notes.append(f"Scene: the Fig. 9 wall's elemental images on {extent} ({', '.join(names)}), CDP and "
                         "focus 750 mm, ideal eye with a 3 mm pupil.")
     tess.notes.append("Labels: density (segments per lens semi-diameter / per lenslet pitch / per prism half-width).")
-    return [spp, tess, waves]
+    return [spp, tess, waves, sampler]
 
 
 # ======================================================================== eye
@@ -599,13 +639,17 @@ def plot_knob(knob: Knob, path: Path) -> None:
     positive = [e for r in knob.rows for e in r["errors"] if e]
     floor = min(positive) / 10.0 if positive else 1e-16
     for j, ax in enumerate(axes[0]):
-        for s in knob.series():
-            rows = [r for r in knob.rows if r["series"] == s and r["errors"][j] is not None]
+        part = knob.extra.get("line_by_setting_part")
+        lines = [(s, None) for s in knob.series()] if part is None else list(dict.fromkeys(
+            (r["series"], r["setting"][part]) for r in knob.rows))
+        for s, sub in lines:
+            rows = [r for r in knob.rows if r["series"] == s and r["errors"][j] is not None
+                    and (sub is None or r["setting"][part] == sub)]
             if not rows:
                 continue
             xs = [r["seconds"] for r in rows]
             ys = [max(r["errors"][j], floor) for r in rows]
-            line, = ax.loglog(xs, ys, "o-", label=s, ms=4)
+            line, = ax.loglog(xs, ys, "o-", label=s if sub is None else f"{s}: {sub}", ms=4)
             for r, x, y in zip(rows, xs, ys):
                 ax.annotate(r["label"], (x, y), fontsize=7, xytext=(3, 3), textcoords="offset points")
                 if r["setting"] == knob.default:

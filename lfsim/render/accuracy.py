@@ -219,3 +219,71 @@ def wavelength_error(design, content, cdp_mm: float = 750.0, resolution=(128, 74
         img, secs = run(k, 0)
         rows.append({"samples": int(k), "rel_rmse": relative_rmse(img, ref), "seconds": secs})
     return {"samples": rows, "noise": relative_rmse(other, ref), "reference_seconds": t_ref}
+
+
+def sampler_noise(design, content, samplers=("independent", "multijitter", "lfsim_sobol"), spps=(16, 64, 256),
+                  cdp_mm: float = 750.0, focus_mm: float = 1000.0, resolution=(512, 309), pupil_mm: float = 3.0,
+                  kinds=("display", "natural"), diffraction=(True, False), wavelength_samples: int = 4) -> dict:
+    """Monte Carlo error of one retinal image against run time, per sampler and spp.
+
+    The focal stack's images (colour, ``wavelength_samples`` nodes per primary; ideal eye
+    with a ``pupil_mm`` pupil focused at ``focus_mm``; the display showing ``content``'s
+    elemental images for the CDP at ``cdp_mm``), rendered with each of ``samplers`` (Mitsuba
+    plugin names) at each of ``spps``, with and without ``diffraction``. The error is the
+    relative RMSE of one image from two seeds, ``RMS(a − b) / √2 / mean``: the estimators are
+    unbiased, so this is the error against the converged image, without rendering one.
+    Seconds: the first seed's render (its three passes, kernels compiled before). Returns ``{"rows": [{kind,
+    diffraction, sampler, spp, rel_rmse, seconds}]}``.
+    """
+    from ..ini.model import model_at_depth
+    from . import display_eye
+    from .analytic import ReverseOptics
+    from .content import scene_dict
+    from .display import DisplayLayout
+    from .elemental import elemental_images
+    from .eye import EyeSpec, sampler_type
+    from .focal_stack import INTEGRATOR, load_scene, render_passes
+    from .spectra import spectral
+
+    mi = mitsuba()
+    sampler_type(1)  # registers lfsim_sobol
+    model = model_at_depth(design, 1000.0 / cdp_mm)
+    layout = DisplayLayout.from_model(model)
+    content_scene = mi.load_dict(scene_dict(content))
+    display = elemental_images(model, content_scene, layout, background=content.background)
+    fx, fy = model.state(0).fov_deg
+    passes = spectral(int(wavelength_samples), content.primaries)
+    scenes = {"display": load_scene({"type": "scene", "display": layout.emitter_dict(display),
+                                     "integrator": INTEGRATOR}),
+              "natural": load_scene(dict(scene_dict(content), integrator=INTEGRATOR))}
+    rows = []
+    for diff in diffraction:
+        keys = [display_eye.attach(ReverseOptics(model, 0, wavelengths=w,
+                                                 diffraction_pupil_mm=pupil_mm if diff else None))
+                for w in passes]
+        try:
+            for kind in kinds:
+                for sampler in samplers:
+                    for i, spp in enumerate(spps):
+                        def run(seed):
+                            jobs = []
+                            for w, key in zip(passes, keys):
+                                eye = EyeSpec("ideal", pupil_mm, focus_mm, (fx, fy), tuple(resolution),
+                                              wavelengths=w, diffraction=bool(diff))
+                                d = (display_eye.sensor_dict(eye, key, spp, seed) if kind == "display"
+                                     else eye.sensor_dict(None, spp, seed))
+                                d["sampler"] = {"type": sampler, "sample_count": int(spp), "seed": int(seed)}
+                                jobs.append((scenes[kind], d))
+                            return render_passes(jobs, passes)
+
+                        if i == 0:
+                            run(2)  # compiles this sampler's kernels outside the timing
+                        a, secs = run(0)
+                        b, _ = run(1)
+                        err = float(np.sqrt(np.mean((a - b) ** 2) / 2.0) / max(float(np.mean(0.5 * (a + b))), 1e-30))
+                        rows.append({"kind": kind, "diffraction": bool(diff), "sampler": sampler, "spp": int(spp),
+                                     "rel_rmse": err, "seconds": secs})
+        finally:
+            for key in keys:
+                display_eye.release(key)
+    return {"rows": rows}
