@@ -412,8 +412,8 @@ def measure_render(scenes: Path, quick: bool, log) -> list[Knob]:
     # Wavelength nodes per primary of a spectral render, on the dispersive freeform design.
     k_default = FocalStackSpec.__dataclass_fields__["wavelength_samples"].default
     wres, wspp = ((24, 14), 16) if quick else (res, spp_default)
-    wk = dict(samples=(1, 2, k_default), reference_samples=8) if quick else dict(samples=(1, 2, 4, 8),
-                                                                                 reference_samples=16)
+    wk = (dict(samples=(1, 2, k_default), reference_samples=2 * k_default) if quick
+          else dict(samples=(1, 2, 4, 8), reference_samples=32))
     waves = Knob("wavelength_samples", "render", "Wavelength nodes per display primary (spectral render)",
                  "nodes per primary", ["RMSE / mean"],
                  f"{wk['reference_samples']} nodes per primary, the same seed (common random numbers)",

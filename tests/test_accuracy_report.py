@@ -15,7 +15,7 @@ sys.modules["accuracy_report"] = accuracy_report  # dataclasses resolve their mo
 _SPEC.loader.exec_module(accuracy_report)
 
 KNOBS = ["tracer_precision", "newton_tol", "newton_max_iter", "pupil", "mtf_grid", "fields", "refine", "stride", "spp",
-         "tessellation", "wavelength_samples", "accommodation"]
+         "tessellation", "wavelength_samples", "sampler", "accommodation"]
 
 
 def test_quick_report_has_a_row_and_a_plot_per_knob(tmp_path):
@@ -51,6 +51,9 @@ def test_quick_report_has_a_row_and_a_plot_per_knob(tmp_path):
     # … and the wavelength quadrature's error with its nodes (one node per primary: the worst).
     wav = {int(r["setting"]): r["errors"][0] for r in by["wavelength_samples"]["rows"]}
     assert wav[1] > wav[max(wav)] > 0
+    # … and the jointly stratified sampler beats independent samples at the same spp.
+    smp = {r["setting"]: r["errors"][0] for r in by["sampler"]["rows"]}
+    assert smp["lfsim_sobol,16"] < 0.8 * smp["independent,16"], smp
 
 
 def test_unwritable_out_is_refused_before_any_work(tmp_path, capsys):

@@ -214,6 +214,10 @@ def _display_bundle(design, k=12, seed=1):
     return o, d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
+def _index(design, name: str) -> int:
+    return [s.name for s in design.system.surfaces].index(name)
+
+
 def _at_plane(p, d, z):
     return p + ((z - p[:, 2]) / d[:, 2])[:, None] * d
 
@@ -224,14 +228,15 @@ def _error_table(mi, coaxial, segs):
     o, d = _display_bundle(coaxial)
     tr = coaxial.tracer()
     frames = tr.frames_numpy()
-    planes = {"after MLA": (1, frames[1][1][2] + 3.0), "end of relay": (14, frames[14][1][2] + 50.0)}
+    end = _index(coaxial, "C1b")  # the relay's last surface
+    planes = {"after MLA": (1, frames[1][1][2] + 3.0), "end of relay": (end, frames[end][1][2] + 50.0)}
     refs = {}
     for label, (last, z) in planes.items():
         out = tr.trace(tr.params(), tr.rays(o, d), last=last)
         refs[label] = (np.asarray(out.status) == 0, _at_plane(_np3(out.p), _np3(out.d), z))
     rows = {label: [] for label in planes}
     for s in segs:
-        shapes = OS.optics_shapes(coaxial, segments=s, lenslet_segments=s, span=(0, 14))
+        shapes = OS.optics_shapes(coaxial, segments=s, lenslet_segments=s, span=(0, end))
         scene = mi.load_dict({"type": "scene", **shapes})
         for label, (last, z) in planes.items():
             # Through the MLA only: stop the walk after its two faces.
@@ -260,7 +265,7 @@ def test_mesh_trace_matches_lfsim_coaxial(mi, coaxial):
     # Bounds: 1/20 of the display pixel (8 µm) and of the intermediate image's (~20 µm). Their
     # noise floor is Mitsuba's float32 rounding of positions up to |z| ~ 262 mm from the origin,
     # about EPS32 · |z| (1.6e-5 mm at the end of the relay); each bound is above 16x that.
-    z_end = abs(coaxial.tracer().frames_numpy()[14][1][2]) + 50.0
+    z_end = abs(coaxial.tracer().frames_numpy()[_index(coaxial, "C1b")][1][2]) + 50.0
     assert 16 * EPS32 * z_end < 0.020 / 20, z_end
     assert rows["after MLA"][-1][1] < 0.008 / 20  # 1/20 display pixel
     assert rows["end of relay"][-1][1] < 0.020 / 20

@@ -200,8 +200,8 @@ def register(sub) -> None:
                          "primaries' spectra; the mesh optics are monochrome at the design's primary)")
     fs.add_argument("--no-diffraction", action="store_true",
                     help="geometric images: no diffraction by the views' apertures and the pupil")
-    fs.add_argument("--wavelength-samples", type=int, default=4,
-                    help="wavelength nodes per display primary of a spectral render (default 4)")
+    fs.add_argument("--wavelength-samples", type=int, default=8,
+                    help="wavelength nodes per display primary of a spectral render (default 8)")
     fs.add_argument("--tessellation", type=float, default=1.0,
                     help="mesh density as a multiple of the defaults (--optics mesh; default 1)")
     fs.add_argument("--out", default="renders/focal_stack", help="output directory (default renders/focal_stack)")

@@ -132,6 +132,11 @@ def _primaries(file, data) -> dict | None:
                 out[c] = Primary(wavelengths_nm=tuple(lam), values=tuple(val))
         except (ValueError, TypeError) as e:
             raise DesignError(file, key, t, str(e)) from None
+    med = {c: float(out[c].quantiles([0.5])[0]) for c in CHANNELS}
+    if not med["B"] < med["G"] < med["R"]:
+        raise DesignError(file, "display.primaries", prim,
+                          "the median wavelengths must rise from B to G to R (here R "
+                          f"{med['R']:.0f} nm, G {med['G']:.0f} nm, B {med['B']:.0f} nm): are channels swapped?")
     return out
 
 

@@ -223,10 +223,11 @@ def wavelength_error(design, content, cdp_mm: float = 750.0, resolution=(128, 74
 
 def sampler_noise(design, content, samplers=("independent", "multijitter", "lfsim_sobol"), spps=(16, 64, 256),
                   cdp_mm: float = 750.0, focus_mm: float = 1000.0, resolution=(512, 309), pupil_mm: float = 3.0,
-                  kinds=("display", "natural"), diffraction=(True, False), wavelength_samples: int = 4) -> dict:
+                  kinds=("display", "natural"), diffraction=(True, False), wavelength_samples: int = 8) -> dict:
     """Monte Carlo error of one retinal image against run time, per sampler and spp.
 
-    The focal stack's images (colour, ``wavelength_samples`` nodes per primary; ideal eye
+    The focal stack's images (colour, ``wavelength_samples`` nodes per primary as the focal
+    stack's default; ideal eye
     with a ``pupil_mm`` pupil focused at ``focus_mm``; the display showing ``content``'s
     elemental images for the CDP at ``cdp_mm``), rendered with each of ``samplers`` (Mitsuba
     plugin names) at each of ``spps``, with and without ``diffraction``. The error is the

@@ -123,6 +123,21 @@ class Wavelengths:
         return cls(tuple(float(v) for v in str(props["wavelengths"]).split(",")))
 
 
+def primaries_doc(primaries: dict | None = None) -> dict:
+    """The display primaries a spectral render used, JSON-ready: ``{"source": "content" |
+    "default", "R": {...}, "G": {...}, "B": {...}}``, each channel its definition (``peak_nm``,
+    ``fwhm_nm``, or ``wavelengths_nm`` and ``values``) and ``median_nm``."""
+    prim = primaries or DEFAULT_PRIMARIES
+    out: dict = {"source": "content" if primaries else "default"}
+    for c in CHANNELS:
+        p = prim[c]
+        d = ({"peak_nm": p.peak_nm, "fwhm_nm": p.fwhm_nm} if p.wavelengths_nm is None
+             else {"wavelengths_nm": list(p.wavelengths_nm), "values": list(p.values)})
+        d["median_nm"] = round(float(p.quantiles([0.5])[0]), 3)
+        out[c] = d
+    return out
+
+
 def describe(passes: list[Wavelengths]) -> str:
     """One line on a render's passes (:func:`spectral` or :func:`monochrome`)."""
     if len(passes) == 1 and passes[0].channel is None:
