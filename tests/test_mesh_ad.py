@@ -127,22 +127,44 @@ def test_vertex_derivatives_match_numpy_central_differences(geometry, coaxial, n
         np.testing.assert_allclose(a, f, rtol=0, atol=atol, err_msg=name)
 
 
+#: Render seeds the AD-against-difference check is averaged over. One 64×36, 8-spp render's
+#: discrepancy scatters from seed to seed far beyond the spread of its own difference steps
+#: (object.distance: 1 % to 11 % over seeds 0-6; L1.curvature: 0.2 % to 2.6 %): every hit
+#: moves across the bilinear kinks of the display image, and where the samples fall against
+#: the texel grid is the seed's. The mean over seeds, with its own standard error, is the check.
+AD_SEEDS = (0, 1, 2, 3)
+
+
 @pytest.mark.parametrize("names", [pytest.param(INTERIOR_DEFAULT, id="default"),
                                    pytest.param(INTERIOR, id="all", marks=pytest.mark.slow)])
-def test_render_ad_matches_central_differences(mesh_setup, names):
-    from lfsim.render import gradcheck as gc
+def test_render_ad_matches_central_differences(coaxial, mesh_setup, names):
+    from dataclasses import replace
 
-    r, loss = mesh_setup
-    doc = gc.gradcheck(r, [t.reshape(r.H, r.W, -1) for t in loss.targets_np], names,
-                       rel_step=gc.MESH_REL_STEP, edge_rel_step=gc.MESH_EDGE_REL_STEP, fd_points=gc.MESH_FD_POINTS)
-    print(gc.table(doc))
-    for p in doc["params"]:
-        assert p["fd_step"] <= gc.fd_step(p["name"], p["value"], p["unit"], gc.MESH_REL_STEP), p
-        assert np.isfinite(p["ad"]) and p["ad"] != 0.0, p
-        # 2 % for AD's float32 arithmetic and the slope's truncation, plus three standard
-        # errors of the float32 difference itself (its spread over the 4 steps it combines).
-        assert p["interior_rel_err"] <= 0.02 + 3.0 * p["interior_noise_rel"], p
-        assert p["forward_reverse_rel"] <= gc.FORWARD_REVERSE_TOL["mesh"], p
+    from lfsim.render import gradcheck as gc
+    from lfsim.render.mesh_ad import MeshRenderer
+
+    r0, loss0 = mesh_setup
+    rows = {n: [] for n in names}
+    for seed in AD_SEEDS:
+        r = r0 if seed == r0.view.seed else MeshRenderer(coaxial, replace(r0.view, seed=seed), display=r0.display)
+        targets = [t.reshape(r.H, r.W, -1) for t in loss0.targets_np]
+        doc = gc.gradcheck(r, targets, names, rel_step=gc.MESH_REL_STEP, edge_rel_step=gc.MESH_EDGE_REL_STEP,
+                           fd_points=gc.MESH_FD_POINTS)
+        print(gc.table(doc))
+        for p in doc["params"]:
+            assert p["fd_step"] <= gc.fd_step(p["name"], p["value"], p["unit"], gc.MESH_REL_STEP), p
+            assert np.isfinite(p["ad"]) and p["ad"] != 0.0, p
+            assert p["forward_reverse_rel"] <= gc.FORWARD_REVERSE_TOL["mesh"], p
+            rows[p["name"]].append((p["ad_kept"], p["fd_interior"]))
+    for name, vals in rows.items():
+        ad, fd = np.array(vals).T
+        diff = ad - fd
+        # 2 % for AD's float32 arithmetic and the slope's truncation, plus three standard errors
+        # of the mean discrepancy over the seeds (from their own scatter).
+        sem = diff.std(ddof=1) / np.sqrt(len(diff))
+        err = abs(diff.mean()) / abs(fd.mean())
+        assert err <= 0.02 + 3.0 * sem / abs(fd.mean()), (name, err, sem / abs(fd.mean()), vals)
+        assert sem / abs(fd.mean()) < 0.05, (name, vals)  # the check is not drowned in its scatter
 
 
 def test_forward_and_reverse_mode_agree_and_no_nan(mesh_setup):

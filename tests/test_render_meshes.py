@@ -101,8 +101,9 @@ def test_mesh_follows_parameter_vector(coaxial):
     c = 1.0 / 40.0
     vals[names.index("A1a.curvature")] = c
     model = M.SurfaceModel(coaxial, values=vals)
-    mesh = M.tessellate_surface(model, 4, 8)
-    R, o = model.frames[4]
+    k = _index(coaxial, "A1a")
+    mesh = M.tessellate_surface(model, k, 8)
+    R, o = model.frames[k]
     loc = (mesh.vertices - o) @ R
     r2 = loc[:, 0] ** 2 + loc[:, 1] ** 2
     z = c * r2 / (1 + np.sqrt(1 - c * c * r2))
@@ -120,7 +121,7 @@ def test_watertight_solids(coaxial, scenes):
             assert solid.is_watertight(), (comp.name, solid.open_edges())
             assert len(solid.pieces) == len(comp.surfaces) - 1  # one closed piece per glass
     # Negative control: without its rim band a lens is open.
-    lens = M.lens_solid(model, [2, 3], 10)
+    lens = M.lens_solid(model, [_index(coaxial, "F1a"), _index(coaxial, "F1b")], 10)
     assert M.open_edge_count(lens.meshes[:2]) > 0
     ff = lfsim.load(scenes / "ini_freeform.toml")
     mf = M.SurfaceModel(ff)

@@ -67,6 +67,10 @@ class _CopyRule:
     src: np.ndarray  # copy: index into the concatenated face vertices
     local: np.ndarray  # rigid: local coordinates; constant: global
     surface: int | None
+    #: Rigid vertices that also follow design numbers linearly in their frame (an aperture
+    #: array's mask follows its array's pitch and centre): ``[(index, P0, dlocal (V, 3))]``.
+    linear: list | None = None
+    normals: np.ndarray | None = None  # local unit normals (rigid), or None
 
 
 class MeshGeometry:
@@ -129,6 +133,8 @@ class MeshGeometry:
         for k, part in enumerate(self.parts):
             if self.rules[k] is None:
                 self.rules[k] = self._copy_rule(part.mesh, lookup)
+                if part.mesh.role == "mask":
+                    self._mask_rule(self.rules[k], part.mesh, design, wavelength_nm)
         self._bsdf_src = [self._bsdf_sources(part) for part in self.parts]
 
     # ----------------------------------------------------------- set-up
@@ -182,6 +188,34 @@ class MeshGeometry:
         if m.surface is not None:
             local = self.model.to_local(m.surface, v)
         return _CopyRule(kind, np.maximum(src, 0), local, m.surface)
+
+    def _mask_rule(self, rule: _CopyRule, m: _m.Mesh, design, wavelength_nm) -> None:
+        """An aperture array's mask: its vertices in the member's frame are affine in the
+        array's pitch and centre (cell corners and clipped hole edges move with them); the
+        slopes come from central differences of :func:`lfsim.render.meshes.aperture_mask`
+        (exact for an affine map, up to rounding). Normals rotate with the frame."""
+        i = m.surface
+        array = self.system.surfaces[i].array
+        if array is None or not np.all(rule.kind == 1):
+            return
+        linear = []
+        for name in (f"{array}.{q}" for q in ("pitch_x", "pitch_y", "center_x", "center_y")):
+            j = self.index[name]
+            h = 1e-6 * max(1.0, abs(float(self.values_fwd[j])))
+            loc = []
+            for sgn in (-1.0, 1.0):
+                v = self.values_fwd.copy()
+                v[j] += sgn * h
+                model = _m.SurfaceModel(design, v, wavelength_nm)
+                mm = _m.aperture_mask(model, i, array)
+                if mm.vertices.shape != m.vertices.shape:
+                    return  # the mask's layout changes with this number: left rigid
+                loc.append(model.to_local(i, mm.vertices))
+            linear.append((j, float(self.values_fwd[j]), (loc[1] - loc[0]) / (2.0 * h)))
+        rule.linear = linear
+        if m.normals is not None:
+            R = self.model.frames[i][0]
+            rule.normals = np.asarray(m.normals, dtype=np.float64) @ R  # global -> local
 
     def _bsdf_sources(self, part) -> dict:
         """{bsdf parameter: [design-vector indices summed]} of one part."""
@@ -269,6 +303,9 @@ class MeshGeometry:
                 out[k] = (dr.zeros(T.Array3, 0), None)
                 continue
             loc = T.Array3(*(T.Float(rule.local[:, c]) for c in range(3)))
+            for j, p0, slope in rule.linear or ():
+                dv = dr.gather(T.Float, P, T.UInt32(j)) - p0
+                loc = loc + T.Array3(*(T.Float(slope[:, c]) for c in range(3))) * dv
             p = Rs[rule.surface] @ loc + os_[rule.surface] if rule.surface is not None else loc
             copy = rule.kind == 0
             for f, off in starts:
@@ -279,7 +316,10 @@ class MeshGeometry:
                 m = T.Bool(sel)
                 idx = T.UInt32(np.where(sel, rule.src - off, 0).astype(np.uint32))
                 p = dr.select(m, dr.gather(T.Array3, out[f][0], idx, m), p)
-            out[k] = (T.Array3(p), None)
+            nrm = None
+            if rule.normals is not None:
+                nrm = T.Array3(Rs[rule.surface] @ T.Array3(*(T.Float(rule.normals[:, c]) for c in range(3))))
+            out[k] = (T.Array3(p), nrm)
         return out
 
     def bsdf_values(self, P) -> list[dict]:
