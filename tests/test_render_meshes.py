@@ -133,7 +133,7 @@ def test_watertight_solids(coaxial, scenes):
 def test_components_only_what_is_declared(scenes):
     names = ("ini_coaxial", "ini_freeform", "ini_ideal", "direct_view", "cooke_triplet")
     kinds = {n: {c.kind for c in M.components(lfsim.load(scenes / f"{n}.toml").system)} for n in names}
-    assert kinds["ini_coaxial"] == {"lenslet_array", "lens", "paraxial"}
+    assert kinds["ini_coaxial"] == {"lenslet_array", "aperture_array", "lens", "paraxial"}
     assert kinds["ini_freeform"] == {"lenslet_array", "aperture_array", "lens", "paraxial", "prism"}
     assert kinds["ini_ideal"] == {"paraxial_array", "paraxial"}
     assert kinds["direct_view"] == {"lenslet_array"}

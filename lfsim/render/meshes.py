@@ -604,6 +604,11 @@ def paraxial_array(model: SurfaceModel, i: int, array: str, name: str | None = N
     return Mesh(name or s.name, P, faces, Ng, np.stack([X, Y], -1).reshape(-1, 2), "paraxial", i)
 
 
+#: Thinnest mask of an aperture array, as a fraction of the cell's area (1e-6: walls of 0.25 nm
+#: at 1 mm pitch).
+MASK_MIN_WALL = 1e-6
+
+
 def aperture_mask(model: SurfaceModel, i: int, array: str, holes: int = 8, name: str | None = None) -> Mesh:
     """An absorbing mask on array member ``i``: every cell minus its aperture
     (a rectangular hole, or a polygon of ``4·holes`` sides for a circle), on
@@ -627,10 +632,14 @@ def aperture_mask(model: SurfaceModel, i: int, array: str, holes: int = 8, name:
             np.stack([-ax + 2 * ax * t, np.full(q, -ay)], 1), np.stack([np.full(q, ax), -ay + 2 * ay * t], 1),
             np.stack([ax - 2 * ax * t, np.full(q, ay)], 1), np.stack([np.full(q, -ax), ay - 2 * ay * t], 1)])
     inner = inner + np.array(ap.decenter)
-    if np.all(np.abs(inner[:, 0]) >= hx * (1 - 1e-12)) or np.all(np.abs(inner[:, 1]) >= hy * (1 - 1e-12)):
+    inner = np.clip(inner, [-hx, -hy], [hx, hy])
+    # An opening that fills its cell but for walls thinner than MASK_MIN_WALL leaves no mask:
+    # it stays empty when the pitch moves by a rounding step or a derivative's step.
+    x, y = inner[:, 0], inner[:, 1]
+    area = 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+    if area >= 4.0 * hx * hy * (1.0 - MASK_MIN_WALL):
         empty = np.zeros((0, 3))
         return Mesh(name or s.name, empty, np.zeros((0, 3), np.int64), empty.copy(), np.zeros((0, 2)), "mask", i)
-    inner = np.clip(inner, [-hx, -hy], [hx, hy])
     cell = np.concatenate([inner, outer])
     ni = len(inner)
     ca = np.arctan2(cell[:, 1] - ap.decenter[1], cell[:, 0] - ap.decenter[0])
