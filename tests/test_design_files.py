@@ -139,3 +139,10 @@ dummy = true
     assert f"{edge:.6g} mm thick at radial height {h:.4g} mm" in msg and "virtual = true" in msg
     p.write_text(text.replace('name = "B"', 'name = "B"\nvirtual = true'))
     assert lfsim.load(p).system.surfaces[1].virtual
+
+
+def test_content_scene_given_as_a_design_is_named_as_such(scenes):
+    import lfsim
+
+    with pytest.raises(DesignError, match=r"fig9_wall\.toml: objects .*content scene.*--content"):
+        lfsim.load(scenes / "fig9_wall.toml")

@@ -41,6 +41,9 @@ def test_focal_stack_cli_writes_the_stack(scenes, tmp_path, capsys):
     assert (out / "contact_sheet.png").exists() and (out / "focus_cues.png").exists()
     assert doc["tunable_power_diopters"] is not None and doc["cdp_mm"] == 750.0
     assert len(doc["focus_cues"]["sharpest"]) == 4
+    # Colour by default: 8 nodes per primary, and the primaries they came from.
+    assert doc["spectral"] and [len(w) for w in doc["wavelengths_nm"]] == [8, 8, 8]
+    assert doc["primaries"]["source"] == "default" and doc["primaries"]["G"]["peak_nm"] == 530.0
     assert not list(out.glob(".*"))  # no temporary files left behind
 
 

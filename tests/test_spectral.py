@@ -151,3 +151,24 @@ def test_content_primaries_are_parsed_and_bad_ones_refused(tmp_path):
                    'G = { peak_nm = 525.0, fwhm_nm = 30.0 }, B = { peak_nm = 450.0, fwhm_nm = 20.0 } }\n')
     with pytest.raises(DesignError, match="display.primaries.R"):
         load_content(bad)
+    swapped = tmp_path / "s.toml"
+    swapped.write_text(base + '[display]\nprimaries = { R = { peak_nm = 450.0, fwhm_nm = 20.0 }, '
+                       'G = { peak_nm = 525.0, fwhm_nm = 30.0 }, B = { peak_nm = 630.0, fwhm_nm = 20.0 } }\n')
+    with pytest.raises(DesignError, match=r"display\.primaries.*R 450 nm, G 525 nm, B 630 nm.*swapped"):
+        load_content(swapped)
+
+
+def test_primaries_are_recorded_as_rendered():
+    from lfsim.render.spectra import DEFAULT_PRIMARIES, Primary, primaries_doc
+
+    d = primaries_doc()
+    assert d["source"] == "default" and d["G"]["peak_nm"] == DEFAULT_PRIMARIES["G"].peak_nm
+    # A symmetric Gaussian's median is its peak.
+    assert all(d[c]["median_nm"] == pytest.approx(DEFAULT_PRIMARIES[c].peak_nm, abs=0.01) for c in "RGB")
+    table = {"R": Primary(wavelengths_nm=(600.0, 610.0, 640.0), values=(0.0, 1.0, 0.0)),
+             "G": DEFAULT_PRIMARIES["G"], "B": DEFAULT_PRIMARIES["B"]}
+    t = primaries_doc(table)
+    assert t["source"] == "content" and t["R"]["wavelengths_nm"] == [600.0, 610.0, 640.0]
+    # Triangle 600-610-640 nm, area 20: the median x leaves area 10 = (640 - x)² / 60 to its right.
+    x = 640.0 - np.sqrt(600.0)
+    assert t["R"]["median_nm"] == pytest.approx(x, abs=0.01)
