@@ -9,7 +9,7 @@ from conftest import SCENES
 
 import lfsim
 from lfsim.cli import main
-from lfsim.vision.accommodation import AccommodationSpec, band_mtf, peak, response, sweep_states
+from lfsim.vision.accommodation import AccommodationSpec, band_mtf, curve, peak, response, sweep_states
 
 CDP = 1.0
 TARGETS = (0.5, 1.0, 2.0)
@@ -79,6 +79,19 @@ def test_fewer_views_in_the_pupil_pull_the_response_to_the_cdp(sweeps):
 def test_the_natural_view_follows_the_target(sweeps):
     for t in TARGETS:
         assert sweeps[3.0][t]["natural_response_d"] == pytest.approx(t, abs=0.1)
+
+
+def test_a_broadband_natural_target_is_focused_at_its_depth_by_the_chromatic_eye():
+    """The Arizona eye, spectral: a real (equal-energy white) target seen through the sRGB
+    colour-matching functions is focused, at the 555 nm reference, at its own depth. Seen in
+    the display's primaries instead, the green-weighted image is sharpest 0.1-0.15 D farther
+    (the eye's chromatic offset at 530 nm), which this bound refuses."""
+    d = lfsim.load(SCENES / "ini_ideal.toml")
+    spec = AccommodationSpec(depths_d=(1.0,), cdp_d=1.0, pupil_mm=4.0, eye="arizona", fov_arcmin=96.0,
+                             resolution=64, spp=128, margin_d=0.3)
+    for t in TARGETS:
+        states = sweep_states(t, t, spec)
+        assert peak(states, curve(d, spec, "natural", t, CDP, states)) == pytest.approx(t, abs=0.1), t
 
 
 def test_accommodation_cli_writes_json_and_plot(scenes, tmp_path, capsys):

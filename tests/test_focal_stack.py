@@ -44,6 +44,10 @@ def test_focal_stack_cli_writes_the_stack(scenes, tmp_path, capsys):
     # Colour by default: 8 nodes per primary, and the primaries they came from.
     assert doc["spectral"] and [len(w) for w in doc["wavelengths_nm"]] == [8, 8, 8]
     assert doc["primaries"]["source"] == "default" and doc["primaries"]["G"]["peak_nm"] == 530.0
+    # The natural view: the real wall's broadband light, the same node count, other nodes.
+    nat_nm = doc["natural_wavelengths_nm"]
+    assert [len(w) for w in nat_nm] == [8, 8, 8] and nat_nm != doc["wavelengths_nm"]
+    assert read_exr(out / "natural_600mm.exr")[1]["lfsim_wavelengths_nm"].startswith(f"{nat_nm[0][0]:.2f}")
     assert not list(out.glob(".*"))  # no temporary files left behind
 
 

@@ -172,3 +172,35 @@ def test_primaries_are_recorded_as_rendered():
     # Triangle 600-610-640 nm, area 20: the median x leaves area 10 = (640 - x)² / 60 to its right.
     x = 640.0 - np.sqrt(600.0)
     assert t["R"]["median_nm"] == pytest.approx(x, abs=0.01)
+
+
+def _wyman_xyz(lam):
+    """The CIE 1931 observer by the multi-lobe fit of Wyman, Sloan & Shirley (JCGT 2(2), 2013,
+    Eq. 2): an independent closed form of the table Mitsuba interpolates."""
+    def g(mu, a, b):
+        t = (lam - mu) * np.where(lam < mu, a, b)
+        return np.exp(-0.5 * t * t)
+    return np.array([1.056 * g(599.8, 0.0264, 0.0323) + 0.362 * g(442.0, 0.0624, 0.0374)
+                     - 0.065 * g(501.1, 0.0490, 0.0382),
+                     0.821 * g(568.8, 0.0213, 0.0247) + 0.286 * g(530.9, 0.0613, 0.0322),
+                     1.217 * g(437.0, 0.0845, 0.0278) + 0.681 * g(459.0, 0.0385, 0.0725)])
+
+
+def test_natural_spectra_are_the_srgb_colour_matching_functions():
+    """The natural view's channels: equal-energy white through the sRGB colour-matching
+    functions. Their quartiles match those of the same functions built from Wyman's closed-form
+    observer to 1 nm, and their medians rise B < G < R."""
+    from lfsim.render.spectra import RANGE_NM, XYZ_TO_SRGB, natural_primaries, primaries_doc
+
+    nat = natural_primaries()
+    lam = np.arange(RANGE_NM[0], RANGE_NM[1] + 0.5, 1.0)
+    S = np.maximum(XYZ_TO_SRGB @ _wyman_xyz(lam), 0.0)
+    q = [0.25, 0.5, 0.75]
+    for k, c in enumerate("RGB"):
+        ref = Primary(wavelengths_nm=tuple(lam), values=tuple(S[k] / S[k].max())).quantiles(q)
+        assert np.allclose(nat[c].quantiles(q), ref, atol=1.0), c
+    med = [nat[c].quantiles([0.5])[0] for c in "BGR"]
+    assert med[0] < med[1] < med[2]
+    assert primaries_doc()["natural"]["G_median_nm"] == pytest.approx(med[1], abs=1e-3)
+    # The natural passes differ from the display's: broadband, not the display's narrow green.
+    assert np.ptp(spectral(8, nat)[1].nm) > 2 * np.ptp(spectral(8)[1].nm)

@@ -197,7 +197,9 @@ def register(sub) -> None:
                     "mesh: the optics as Mitsuba meshes, path-traced")
     fs.add_argument("--wavelength-nm", type=float,
                     help="render every channel at this one wavelength, nm (default: spectral, the display "
-                         "primaries' spectra; the mesh optics are monochrome at the design's primary)")
+                         "primaries' spectra on the display, broadband white through the sRGB "
+                         "colour-matching functions in the natural view; the mesh optics are "
+                         "monochrome at the design's primary)")
     fs.add_argument("--no-diffraction", action="store_true",
                     help="geometric images: no diffraction by the views' apertures and the pupil")
     fs.add_argument("--wavelength-samples", type=int, default=8,

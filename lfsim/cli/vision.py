@@ -129,7 +129,9 @@ def register(sub) -> None:
     p.add_argument("--cdp-d", type=float, help="display: CDP state, diopters (default: the design's middle CDP)")
     p.add_argument("--eye", choices=("ideal", "arizona"), default="ideal")
     p.add_argument("--pupil-mm", type=float, default=3.0, help="eye pupil diameter, mm (default 3)")
-    p.add_argument("--wavelength-nm", type=float, help="one wavelength (default: spectral, the display primaries)")
+    p.add_argument("--wavelength-nm", type=float,
+                   help="one wavelength (default: spectral: the display primaries on the display, "
+                        "broadband white in the natural view)")
     p.add_argument("--no-diffraction", action="store_true", help="geometric images (no aperture diffraction)")
     p.add_argument("--fov-arcmin", type=float, help="image width, arcmin (default: from the blur expected)")
     p.add_argument("--resolution", type=int, default=161, help="pixels per side (default 161)")
@@ -151,7 +153,9 @@ def register(sub) -> None:
     a.add_argument("--pupil-mm", type=float, default=4.0, help="eye pupil diameter, mm (default 4)")
     a.add_argument("--eye", choices=("ideal", "arizona"), default="arizona",
                    help="arizona (default): the Arizona eye, dispersive; ideal: aberration- and dispersion-free")
-    a.add_argument("--wavelength-nm", type=float, help="one wavelength (default: spectral, the display primaries)")
+    a.add_argument("--wavelength-nm", type=float,
+                   help="one wavelength (default: spectral: the display primaries on the display, "
+                        "broadband white in the natural view)")
     a.add_argument("--wavelength-samples", type=int, default=4,
                    help="spectral: wavelength nodes per display primary (default 4)")
     a.add_argument("--no-diffraction", action="store_true", help="geometric images (no aperture diffraction)")

@@ -220,7 +220,7 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None, ana
     from .display_eye import sensor_dict as display_sensor
     from .elemental import elemental_images
     from .eye import EyeSpec
-    from .spectra import describe, primaries_doc
+    from .spectra import describe, natural_primaries, primaries_doc
 
     spec = spec or FocalStackSpec()
     mi = mitsuba()
@@ -250,6 +250,9 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None, ana
     if bar:
         bar.close()
     passes = spec.wavelengths(model.lam, content.primaries)
+    # The natural view is the real scene: broadband light through the sRGB colour-matching
+    # functions, not the display's primaries (the same nodes count; monochrome stays monochrome).
+    nat_passes = passes if passes[0].channel is None else spec.wavelengths(model.lam, natural_primaries())
     # Diffraction on the analytic path only (the mesh path's BSDFs bend no ray by an aperture).
     diffraction = spec.diffraction and spec.optics == "analytic"
     base_meta = {"design": design.path or design.name, "content": content.path, "cdp_mm": spec.cdp_mm,
@@ -323,12 +326,14 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None, ana
                 # the same at every wavelength, one pass.
                 img, secs = render(*scene_for(kind, eye_for(None)))
             else:
-                img, secs = render_passes(
-                    [scene_for(kind, eye_for(w), key) for w, key in zip(passes, keys)], passes)
+                ps = passes if kind == "display" else nat_passes
+                img, secs = render_passes([scene_for(kind, eye_for(w), key) for w, key in zip(ps, keys)], ps)
             if not np.all(np.isfinite(img)):
                 raise FloatingPointError(f"non-finite pixels in the {kind} image at {f:g} mm")
             tag = f"{kind}_{f:g}mm"
             meta = dict(base_meta, kind=kind, focus_mm=f, spp=spec.spp, render_s=round(secs, 3))
+            if kind == "natural":
+                meta["wavelengths_nm"] = ";".join(",".join(f"{v:.2f}" for v in w.nm) for w in nat_passes)
             write_exr(out / f"{tag}.exr", img, meta)
             write_png(out / f"{tag}.png", img)
             by_focus.setdefault(f, {})[kind] = img
@@ -354,7 +359,8 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None, ana
            "cdp_diopters": cdp_D, "tunable_power_diopters": state.tunable_power_diopters,
            "pupil_diameter_mm": spec.pupil_diameter_mm, "eye_model": spec.eye_model,
            "mla_cells": spec.mla_cells, "optics": spec.optics,
-           "wavelengths_nm": [list(w.nm) for w in passes], "spectral": spectral,
+           "wavelengths_nm": [list(w.nm) for w in passes],
+           "natural_wavelengths_nm": [list(w.nm) for w in nat_passes], "spectral": spectral,
            "primaries": primaries_doc(content.primaries) if spectral else None, "diffraction": diffraction,
            **({"tessellation": spec.tessellation} if spec.optics == "mesh" else {}),
            "fov_deg": [fx, fy], "resolution": [W, H], "seed": spec.seed,

@@ -99,6 +99,37 @@ class Primary:
 DEFAULT_PRIMARIES = {"R": Primary(620.0, 35.0), "G": Primary(530.0, 30.0), "B": Primary(460.0, 25.0)}
 
 
+#: Linear sRGB from CIE 1931 XYZ (IEC 61966-2-1, D65 white).
+XYZ_TO_SRGB = np.array([[3.2406, -1.5372, -0.4986], [-0.9689, 1.8758, 0.0415], [0.0557, -0.2040, 1.0570]])
+
+_NATURAL: dict | None = None
+
+
+def natural_primaries() -> dict:
+    """The channel spectra of the natural view: a broadband (equal-energy) scene seen through
+    the sRGB colour-matching functions, ``S_c(λ) = max(0, (M · [x̄, ȳ, z̄](λ))_c)``, with
+    :data:`XYZ_TO_SRGB` and the CIE 1931 2° observer (Mitsuba's ``cie1931_xyz``: the CIE
+    table, linearly interpolated), tabulated every nm over :data:`RANGE_NM`.
+
+    A real scene is not three narrow primaries: a white object sends every wavelength, and
+    the eye weighs them by its sensitivities. Channel medians 606 / 540 / 450 nm; the
+    luminance-weighted focus of such a target is the eye's focus near 555 nm, so a natural
+    target's accommodation response is its depth (:mod:`lfsim.vision.accommodation`).
+    """
+    global _NATURAL
+    if _NATURAL is None:
+        from . import mitsuba
+
+        mi = mitsuba()
+        lam = np.arange(RANGE_NM[0], RANGE_NM[1] + 0.5, 1.0)
+        xyz = mi.cie1931_xyz(mi.Float(lam.astype(np.float32)))
+        X = np.array([np.asarray(xyz[i], dtype=np.float64) for i in range(3)])
+        S = np.maximum(XYZ_TO_SRGB @ X, 0.0)
+        _NATURAL = {c: Primary(wavelengths_nm=tuple(lam), values=tuple(S[k] / S[k].max()))
+                    for k, c in enumerate(CHANNELS)}
+    return _NATURAL
+
+
 @dataclass(frozen=True)
 class Wavelengths:
     """The wavelength nodes of one render pass: ``nm`` (J,), picked uniformly per ray, and the
@@ -124,9 +155,10 @@ class Wavelengths:
 
 
 def primaries_doc(primaries: dict | None = None) -> dict:
-    """The display primaries a spectral render used, JSON-ready: ``{"source": "content" |
-    "default", "R": {...}, "G": {...}, "B": {...}}``, each channel its definition (``peak_nm``,
-    ``fwhm_nm``, or ``wavelengths_nm`` and ``values``) and ``median_nm``."""
+    """The spectra a spectral render used, JSON-ready: ``{"source": "content" | "default",
+    "R": {...}, "G": {...}, "B": {...}, "natural": ...}``, each display channel its definition
+    (``peak_nm``, ``fwhm_nm``, or ``wavelengths_nm`` and ``values``) and ``median_nm``;
+    ``natural``: the natural view's channels (:func:`natural_primaries`), their medians."""
     prim = primaries or DEFAULT_PRIMARIES
     out: dict = {"source": "content" if primaries else "default"}
     for c in CHANNELS:
@@ -135,6 +167,9 @@ def primaries_doc(primaries: dict | None = None) -> dict:
              else {"wavelengths_nm": list(p.wavelengths_nm), "values": list(p.values)})
         d["median_nm"] = round(float(p.quantiles([0.5])[0]), 3)
         out[c] = d
+    nat = natural_primaries()
+    out["natural"] = {"spectra": "equal-energy white through the sRGB colour-matching functions (CIE 1931)",
+                      **{f"{c}_median_nm": round(float(nat[c].quantiles([0.5])[0]), 3) for c in CHANNELS}}
     return out
 
 

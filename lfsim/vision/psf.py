@@ -201,7 +201,7 @@ class PsfRenderer:
         from ..render.display import DisplayLayout
         from ..render.display_eye import attach
         from ..render.focal_stack import INTEGRATOR, load_scene
-        from ..render.spectra import describe, monochrome, primaries_doc, spectral
+        from ..render.spectra import describe, monochrome, natural_primaries, primaries_doc, spectral
 
         if spec.view not in VIEWS:
             raise ValueError(f"view = {spec.view!r}: expected one of {', '.join(VIEWS)}")
@@ -221,8 +221,10 @@ class PsfRenderer:
             design_nm = model.lam
         else:
             aperture, design_nm = spec.pupil_mm, 550.0
+        # The natural view's point is a real, broadband one; the display shows its primaries.
         self.passes = (monochrome(spec.wavelength_nm) if spec.wavelength_nm is not None
-                       else spectral(spec.wavelength_samples))
+                       else spectral(spec.wavelength_samples,
+                                     natural_primaries() if spec.view == "natural" else None))
         self.doc["wavelengths_nm"] = [list(p.nm) for p in self.passes]
         self.doc["primaries"] = primaries_doc() if spec.wavelength_nm is None else None
         self.doc["design_wavelength_nm"] = design_nm
