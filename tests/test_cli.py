@@ -290,3 +290,13 @@ def test_every_verb_prints_its_help():
     for name, sp in sub.choices.items():
         assert f"usage: lfsim {name}" in sp.format_help(), name
     assert "usage: lfsim" in parser.format_help()
+
+
+def test_the_default_content_is_found_outside_the_checkout(tmp_path, monkeypatch):
+    from lfsim.cli.common import DEFAULT_CONTENT, content_path
+    from lfsim.design.content import load_content
+
+    monkeypatch.chdir(tmp_path)
+    path = content_path(DEFAULT_CONTENT)
+    assert path != DEFAULT_CONTENT and load_content(path).view.design
+    assert content_path("other.toml") == "other.toml"  # a file the user names is theirs to find

@@ -6,11 +6,13 @@ matters, and the ray trace decides it (see lfsim.ini.first_order).
 """
 
 import copy
+import json
 import math
 import tomllib
 
 import numpy as np
 import pytest
+from conftest import SCENES
 
 import lfsim
 from lfsim.analysis.ini_analysis import evaluate
@@ -142,3 +144,45 @@ def test_fixed_depth_without_tunable_lens(scenes):
     data["ini"]["cdp_diopters"] = [2.0]
     with pytest.raises(DesignError, match="the geometry puts the CDP at 0.0000 D"):
         IniModel(lfsim.Design.from_dict(data))
+
+
+def _display_side_aa(tmp_path, explicit_stop: bool):
+    """ini_coaxial with its aperture array moved to the display side: 1 mm in front of the
+    lenslets (the display gap shortened by that much, the mm behind the lenslets given back to
+    L2's thickness), so every ray meets the same glass at the same place."""
+    text = (SCENES / "ini_coaxial.toml").read_text()
+    a, b = text.index('[[surfaces]]\nname = "AA"'), text.index('[[surfaces]]\nname = "F1a"')
+    aa = text[a:b].replace("thickness = 6.2019667", "thickness = 1.0")
+    text = text[:a] + text[b:]
+    text = text.replace("thickness = 0.3\naperture", "thickness = 6.5019667\naperture", 1)
+    i = text.index('[[surfaces]]\nname = "L1"')
+    text = text[:i] + aa + text[i:]
+    text = text.replace("distance = 6.9999162", "distance = 5.9999162", 1)
+    if explicit_stop:
+        text = text.replace('viewing_window = "VW"', 'viewing_window = "VW"\naperture_array = "AA"', 1)
+    path = tmp_path / ("aa_stop.toml" if explicit_stop else "aa_front.toml")
+    path.write_text(text)
+    return path
+
+
+def test_a_display_side_aperture_array_leaves_the_lenslet_face_the_stop(tmp_path, capsys):
+    from lfsim.analysis.ini_analysis import analyze
+    from lfsim.cli import main
+
+    d = lfsim.load(_display_side_aa(tmp_path, False))
+    names = [s.name for s in d.system.surfaces]
+    assert names[:3] == ["AA", "L1", "L2"] and d.ini.stop == 1  # the first refracting member
+    # Its 1 x 1 mm openings 1 mm before the lenslets clip none of the analysis rays: the same
+    # figures as the design with the array behind the lenslets.
+    got = analyze(d, stride=(8, 4), plots=False)["summary"]
+    ref = analyze(lfsim.load(SCENES / "ini_coaxial.toml"), stride=(8, 4), plots=False)["summary"]
+    for key in ("gd_max_deg", "gd_mean_deg", "pa_max", "pa_mean", "contrast_nyquist_min"):
+        assert got[key] == pytest.approx(ref[key], rel=1e-9, abs=1e-12), key
+    # Named as the stop, the array's edge rays miss the lenslet behind it: PA has no value, and
+    # analyze says so instead of failing.
+    out = tmp_path / "out"
+    assert main(["analyze", str(_display_side_aa(tmp_path, True)), "--stride", "8,4", "--no-plots",
+                 "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "PA (Eq. 12)  max n/a" in text and "marginal rays failed" in text
+    assert json.loads((out / "metrics.json").read_text())["summary"]["pa_max"] is None

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 
@@ -72,11 +73,22 @@ def _float_list(text, flag):
 DEFAULT_CONTENT = "scenes/fig9_wall.toml"
 
 
+def content_path(path: str) -> str:
+    """``path``, except the default content when run outside the checkout: the shipped
+    ``scenes/fig9_wall.toml`` beside the package."""
+    if path == DEFAULT_CONTENT and not Path(path).exists():
+        shipped = Path(__file__).resolve().parents[2] / DEFAULT_CONTENT
+        if shipped.exists():
+            return str(shipped)
+    return path
+
+
 def _view_of(args, verb: str):
     """The content, design and eye view of a render verb: ``(content, design_path, design, focus_mm,
     cdp_mm, pupil_mm)``, from the arguments or else the content file's ``[view]``."""
     from ..design.content import load_content
 
+    args.content = content_path(args.content)
     content = load_content(args.content)
     view = content.view
     design_path = args.design or view.design

@@ -100,18 +100,26 @@ def cmd_analyze(args) -> int:
     s = doc["summary"]
     print(f"{doc['design']}: {s['subsystems_evaluated']} sub-systems x {s['fields_per_subsystem']} fields "
           f"({s['rays_traced']} rays) in {s['wall_s']:.1f} s (trace {s['trace_s']:.1f} s)")
-    print(f"  GD (Eq. 11)  max {s['gd_max_deg']:.4f} deg, mean {s['gd_mean_deg']:.4f} deg "
-          f"({s['gd_within_target']} within {s['gd_target_deg']:g} deg)")
-    print(f"  PA (Eq. 12)  max {s['pa_max']:.4f}, mean {s['pa_mean']:.4f} "
-          f"({s['pa_within_target']} sub-systems within {s['pa_target']:g})")
-    print(f"  contrast at Nyquist {s['nyquist_cpd']:.2f} cpd: min {s['contrast_nyquist_min']:.3f}, "
-          f"mean {s['contrast_nyquist_mean']:.3f}")
+    print(f"  GD (Eq. 11)  max {_num(s['gd_max_deg'], '.4f')} deg, mean {_num(s['gd_mean_deg'], '.4f')} deg "
+          f"({s['gd_within_target']} within {s['gd_target_deg']:g} deg"
+          + (f"; {s['gd_failed']} chief rays failed)" if s.get("gd_failed") else ")"))
+    print(f"  PA (Eq. 12)  max {_num(s['pa_max'], '.4f')}, mean {_num(s['pa_mean'], '.4f')} "
+          f"({s['pa_within_target']} sub-systems within {s['pa_target']:g}"
+          + (f"; {s['pa_fields_failed']} fields' marginal rays failed)" if s.get("pa_fields_failed") else ")"))
+    print(f"  contrast at Nyquist {s['nyquist_cpd']:.2f} cpd: min {_num(s['contrast_nyquist_min'], '.3f')}, "
+          f"mean {_num(s['contrast_nyquist_mean'], '.3f')}")
     for D, b in doc["by_depth"].items():
-        print(f"  CDP {D} D: contrast min {b['contrast_nyquist_min']:.3f} mean {b['contrast_nyquist_mean']:.3f}, "
-              f"RMS spot mean {b['rms_spot_mean_arcmin']:.3f}' max {b['rms_spot_max_arcmin']:.3f}', "
-              f"GD max {b['gd_max_deg']:.3f} deg, PA max {b['pa_max']:.3f}")
+        print(f"  CDP {D} D: contrast min {_num(b['contrast_nyquist_min'], '.3f')} "
+              f"mean {_num(b['contrast_nyquist_mean'], '.3f')}, "
+              f"RMS spot mean {_num(b['rms_spot_mean_arcmin'], '.3f')}' max {_num(b['rms_spot_max_arcmin'], '.3f')}', "
+              f"GD max {_num(b['gd_max_deg'], '.3f')} deg, PA max {_num(b['pa_max'], '.3f')}")
     print(f"wrote {args.out}/metrics.json" + (", " + ", ".join(doc.get("plots", [])) if doc.get("plots") else ""))
     return 0
+
+
+def _num(v, fmt: str) -> str:
+    """A figure for the terminal; "n/a" where every ray it needs failed (metrics.json: null)."""
+    return "n/a" if v is None else format(v, fmt)
 
 
 def cmd_optimize(args) -> int:

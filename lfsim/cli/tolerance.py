@@ -6,7 +6,17 @@ import sys
 
 from .. import budget
 from ..fileio import check_writable as _writable
-from .common import DEFAULT_CONTENT, InputError, _add_dask, _add_set, _dump, _int_pair, _load_design, _scheduler_args
+from .common import (
+    DEFAULT_CONTENT,
+    InputError,
+    _add_dask,
+    _add_set,
+    _dump,
+    _int_pair,
+    _load_design,
+    _scheduler_args,
+    content_path,
+)
 
 
 def _log(args):
@@ -76,7 +86,7 @@ def cmd_sweep(args) -> int:
         from ..design.content import load_content
         from ..render.focal_stack import FocalStackSpec
 
-        content = load_content(args.content)
+        content = load_content(content_path(args.content))
         view = content.view
         if args.spp < 1:
             raise InputError(f"--spp = {args.spp}: must be >= 1")

@@ -5,7 +5,17 @@ from __future__ import annotations
 import math
 import sys
 
-from .common import DEFAULT_CONTENT, InputError, _add_set, _check_seed, _dump, _float_list, _fmt, _load_design
+from .common import (
+    DEFAULT_CONTENT,
+    InputError,
+    _add_set,
+    _check_seed,
+    _dump,
+    _float_list,
+    _fmt,
+    _load_design,
+    content_path,
+)
 
 
 def _default_design(args):
@@ -14,7 +24,7 @@ def _default_design(args):
         return args.design
     from ..design.content import load_content
 
-    d = load_content(DEFAULT_CONTENT).view.design
+    d = load_content(content_path(DEFAULT_CONTENT)).view.design
     if d is None:
         raise InputError(f"{DEFAULT_CONTENT}: view.design = missing: give a DESIGN argument")
     return d

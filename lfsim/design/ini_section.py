@@ -13,7 +13,7 @@ Schema (units mm, diopters)::
                                     # line of sight, (x, y) the viewing-window plane
     aperture_array = "AA"           # optional: a member surface of the MLA group whose
                                     # aperture is each sub-system's stop (default: the
-                                    # first lenslet surface)
+                                    # group's first refracting surface, the lenslet face)
     [ini.tunable]                   # optional
     surface = "TL"                  # a type = "paraxial" surface
     power_diopters = [..]           # optional, one per depth; omitted: solved paraxially
@@ -122,7 +122,9 @@ def parse_ini(ctx, data: dict, system: System) -> IniSpec | None:
         raise ctx.err("ini.viewing_window", vws.name, "the viewing window must be a plane dummy surface")
     if vw <= members[-1]:
         raise ctx.err("ini.viewing_window", vws.name, "must come after the lenslet array")
-    stop = members[0]
+    # Default stop: the lenslet's first face (the first member that refracts; an aperture
+    # array on the display side, a dummy member, is then one more clipping aperture).
+    stop = next((i for i in members if system.surfaces[i].interaction == "refract"), members[0])
     if "aperture_array" in tab:
         stop = _surface_ref(ctx, tab, "aperture_array", "ini", names)
         if stop not in members or system.surfaces[stop].aperture is None:
