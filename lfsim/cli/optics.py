@@ -120,6 +120,19 @@ def cmd_params(args) -> int:
     return 0
 
 
+def cmd_lens(args) -> int:
+    from ..optics.lens_table import format_table, lens_table
+
+    design = _load_design(args)
+    lam = design.wavelength(args.wavelength_nm)
+    doc = lens_table(design.system, lam)
+    if args.json:
+        print(_dump({"design": design.name, "file": args.design, **doc}))
+    else:
+        print(format_table(doc, design.name))
+    return 0
+
+
 def cmd_layout(args) -> int:
     from ..analysis.layout import layout_report
 
@@ -164,6 +177,15 @@ def register(sub) -> None:
     _add_set(pa)
     pa.add_argument("--json", action="store_true")
     pa.set_defaults(func=cmd_params)
+
+    ln = sub.add_parser("lens", help="the lens data table: one row per surface (type, radius, thickness, "
+                        "material with nd and Vd, semi-diameter, conic, aspheric and XY terms, tilts, stop)")
+    ln.add_argument("design")
+    ln.add_argument("--wavelength-nm", type=float, default=None,
+                    help="wavelength of the n column, nm (default: the design's primary)")
+    _add_set(ln)
+    ln.add_argument("--json", action="store_true", help="the same data as JSON")
+    ln.set_defaults(func=cmd_lens)
 
     lay = sub.add_parser("layout", help="layout and spot-diagram pictures plus a summary")
     lay.add_argument("design")
