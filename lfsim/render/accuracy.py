@@ -22,6 +22,7 @@ import time
 
 import numpy as np
 
+from ..backend import from_numpy
 from . import mitsuba
 
 
@@ -39,7 +40,7 @@ def eye_rays(eye_spec, spp: int, seed: int = 0):
     u = ((pix % W) + rng.random(pix.size)) / W
     v = ((pix // W) + rng.random(pix.size)) / H
     ap = rng.random((pix.size, 2))
-    f = lambda a: mi.Float(np.ascontiguousarray(a, dtype=np.float32))  # noqa: E731
+    f = lambda a: from_numpy(mi.Float, np.asarray(a, dtype=np.float32))  # noqa: E731
     with dr.suspend_grad():
         ray, w = sensor.sample_ray(mi.Float(0.0), mi.Float(0.5), mi.Point2f(f(u), f(v)),
                                    mi.Point2f(f(ap[:, 0]), f(ap[:, 1])))

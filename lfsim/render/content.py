@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..backend import from_numpy
 from ..design.content import ContentScene, Quad
 from . import mitsuba
 
@@ -89,10 +90,12 @@ def shade(scene, origins: np.ndarray, directions: np.ndarray, valid: np.ndarray 
     import drjit as dr
 
     mi = mitsuba()
-    o = np.ascontiguousarray(origins, dtype=np.float32)
-    dd = np.ascontiguousarray(directions, dtype=np.float32)
-    ray = mi.Ray3f(mi.Point3f(o[:, 0], o[:, 1], o[:, 2]),
-                   dr.normalize(mi.Vector3f(dd[:, 0], dd[:, 1], dd[:, 2])))
+    o = np.asarray(origins, dtype=np.float32)
+    dd = np.asarray(directions, dtype=np.float32)
+    # Copied into Dr.Jit's aligned memory: a kernel reading a mapped numpy buffer bakes its
+    # alignment into the IR and compiles again whenever numpy allocates differently.
+    ray = mi.Ray3f(mi.Point3f(*from_numpy(mi.Float, *(o[:, k] for k in range(3)))),
+                   dr.normalize(mi.Vector3f(*from_numpy(mi.Float, *(dd[:, k] for k in range(3))))))
     si = scene.ray_intersect(ray)
     L = si.emitter(scene).eval(si, si.is_valid())
     bg = mi.Color3f(*[float(b) for b in background])

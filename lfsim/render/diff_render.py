@@ -45,6 +45,7 @@ import drjit as dr
 import numpy as np
 
 from .. import backend
+from ..backend import from_numpy
 from ..design.content import VIEW_DEFAULTS
 from ..optics.reverse import reversed_system
 from ..optics.tracer import RayState, SequentialTracer
@@ -298,8 +299,9 @@ class AnalyticRenderer:
         py = (pix // self.W + rng.random(n)) / self.H
         pupil = rng.random((n, 2))
         with dr.suspend_grad():
-            ray, w = sensor.sample_ray(0.0, 0.0, mi.Point2f(px.astype(np.float32), py.astype(np.float32)),
-                                       mi.Point2f(pupil[:, 0].astype(np.float32), pupil[:, 1].astype(np.float32)))
+            f32 = lambda a: a.astype(np.float32)  # noqa: E731
+            ray, w = sensor.sample_ray(0.0, 0.0, mi.Point2f(*from_numpy(mi.Float, f32(px), f32(py))),
+                                       mi.Point2f(*from_numpy(mi.Float, f32(pupil[:, 0]), f32(pupil[:, 1]))))
             dr.eval(ray.o, ray.d, w)  # one kernel (each read alone would sample again)
             o = np.stack([np.asarray(ray.o[i], dtype=np.float64) for i in range(3)], axis=1)
             d = np.stack([np.asarray(ray.d[i], dtype=np.float64) for i in range(3)], axis=1)

@@ -80,6 +80,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..backend import from_numpy
 from . import mitsuba as _mitsuba
 from .eye_models import (  # re-exported API
     arizona_first_order,
@@ -223,7 +224,7 @@ def _sensor_class(mi):
 
                 self._airy = AiryKick(mi)
                 nm = self.waves.nm if self.waves is not None else (p["wavelength_nm"],)
-                self._nodes_nm = mi.Float(np.asarray(nm, dtype=np.float32))
+                self._nodes_nm = from_numpy(mi.Float, np.asarray(nm, dtype=np.float32))
                 dr.make_opaque(self._nodes_nm)
                 self._pupil_diameter = op(p["pupil_diameter"])
             if self.model == "arizona":

@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..backend import to_numpy
+from ..backend import from_numpy, to_numpy
 from ..optics.prescription import Aperture
 from . import bsdfs as _bsdfs
 from . import meshes as _m
@@ -500,8 +500,8 @@ def trace_scene(scene, origins, directions, max_depth: int = 64, along_ray: bool
     d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
     d = (d / np.linalg.norm(d, axis=1, keepdims=True)).astype(np.float32)
     n = len(o)
-    ray = mi.Ray3f(mi.Point3f(*[mi.Float(np.ascontiguousarray(o[:, k])) for k in range(3)]),
-                   mi.Vector3f(*[mi.Float(np.ascontiguousarray(d[:, k])) for k in range(3)]))
+    ray = mi.Ray3f(mi.Point3f(*from_numpy(mi.Float, *(o[:, k] for k in range(3)))),
+                   mi.Vector3f(*from_numpy(mi.Float, *(d[:, k] for k in range(3)))))
     pos, dirn = mi.Point3f(ray.o), mi.Vector3f(ray.d)
     active = dr.full(mi.Bool, True, n)
     absorbed = dr.full(mi.Bool, False, n)

@@ -45,6 +45,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..backend import from_numpy
+
 #: Wavelength range the spectra are integrated over (nm).
 RANGE_NM = (380.0, 780.0)
 CHANNELS = ("R", "G", "B")
@@ -122,7 +124,7 @@ def natural_primaries() -> dict:
 
         mi = mitsuba()
         lam = np.arange(RANGE_NM[0], RANGE_NM[1] + 0.5, 1.0)
-        xyz = mi.cie1931_xyz(mi.Float(lam.astype(np.float32)))
+        xyz = mi.cie1931_xyz(from_numpy(mi.Float, lam.astype(np.float32)))
         X = np.array([np.asarray(xyz[i], dtype=np.float64) for i in range(3)])
         S = np.maximum(XYZ_TO_SRGB @ X, 0.0)
         _NATURAL = {c: Primary(wavelengths_nm=tuple(lam), values=tuple(S[k] / S[k].max()))

@@ -25,6 +25,7 @@ LUMA = np.array([0.2126, 0.7152, 0.0722])
 def column_depths(content_scene, fov_deg, width: int, height: int, rows: int = 9) -> np.ndarray:
     """Distance (mm, along the line of sight −z) of the content seen in each image column
     (median over ``rows`` rows across the image; NaN where nothing is hit)."""
+    from ..backend import from_numpy
     from ..render import mitsuba
 
     mi = mitsuba()
@@ -35,7 +36,7 @@ def column_depths(content_scene, fov_deg, width: int, height: int, rows: int = 9
     d = np.stack([np.tan(AX), np.tan(AY), -np.ones_like(AX)], axis=-1).reshape(-1, 3)
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     d32 = d.astype(np.float32)
-    ray = mi.Ray3f(mi.Point3f(0.0, 0.0, 0.0), mi.Vector3f(d32[:, 0], d32[:, 1], d32[:, 2]))
+    ray = mi.Ray3f(mi.Point3f(0.0, 0.0, 0.0), mi.Vector3f(*from_numpy(mi.Float, *(d32[:, k] for k in range(3)))))
     si = content_scene.ray_intersect(ray)
     z = np.where(np.asarray(si.is_valid()), -np.asarray(si.p.z, dtype=np.float64), np.nan)
     z = z.reshape(rows, width)
