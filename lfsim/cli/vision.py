@@ -133,11 +133,14 @@ def cmd_accommodation(args) -> int:
 def register(sub) -> None:
     p = sub.add_parser("psf", help="retinal PSF of a point shown by the display at a depth, or of the real point")
     p.add_argument("design", nargs="?", help=f"InI design (default: the view design of {DEFAULT_CONTENT})")
-    p.add_argument("--view", choices=("display", "natural"), default="display")
+    p.add_argument("--view", choices=("display", "natural"), default="display",
+                   help="display (default): the elemental images of the point, through the optics; "
+                        "natural: the real point")
     p.add_argument("--depth-d", type=float, default=1.0, help="depth of the point, diopters (default 1)")
     p.add_argument("--focus-d", type=float, default=1.0, help="eye focus, diopters (default 1)")
     p.add_argument("--cdp-d", type=float, help="display: CDP state, diopters (default: the design's middle CDP)")
-    p.add_argument("--eye", choices=("ideal", "arizona"), default="ideal")
+    p.add_argument("--eye", choices=("ideal", "arizona"), default="ideal",
+                   help="ideal (default): aberration- and dispersion-free; arizona: the Arizona eye, dispersive")
     p.add_argument("--pupil-mm", type=float, default=3.0, help="eye pupil diameter, mm (default 3)")
     p.add_argument("--wavelength-nm", type=float,
                    help="one wavelength (default: spectral: the display primaries on the display, "
