@@ -1,5 +1,7 @@
 """Material catalog: formulas against printed catalog data and against optiland."""
 
+import json
+import math
 import tomllib
 import warnings
 from importlib import resources
@@ -72,3 +74,80 @@ def test_wavelength_outside_formula_range_is_a_design_error(make_design):
             [[surfaces]]
             dummy = true
         """)
+
+
+# ------------------------------------------------------------ vendor catalogs
+#: Catalog nd and vd as the vendors print them (SCHOTT, OHARA, CDGM, HOYA data sheets):
+#: an independent answer to the dispersion formulas the catalogs resolve to.
+VENDOR_DATASHEET = {
+    "N-SF6": (1.80518, 25.36),          # SCHOTT
+    "NSSK2_SCHOTT": (1.62229, 53.27),   # SCHOTT N-SSK2, written as CODE V writes it
+    "S-BSL7": (1.51633, 64.14),         # OHARA
+    "S-LAH64_OHARA": (1.78800, 47.37),  # OHARA
+    "H-K9L": (1.51680, 64.20),          # CDGM
+    "E-FD1_HOYA": (1.71736, 29.50),     # HOYA
+}
+
+
+@pytest.mark.parametrize("name,printed", VENDOR_DATASHEET.items(), ids=list(VENDOR_DATASHEET))
+def test_vendor_glasses_reproduce_their_data_sheets(name, printed):
+    m = lookup(name)
+    assert m.kind == "vendor"
+    assert m.nd == pytest.approx(printed[0], abs=2e-5) and m.vd == pytest.approx(printed[1], abs=0.02)
+    assert m.in_range(450.0) and m.in_range(656.2725)
+
+
+def test_vendor_names_resolve_as_the_catalogs_spell_them():
+    lam = np.array([450.0, 587.5618, 650.0])
+    ref = lookup("N-SSK2").index(lam)
+    for spelling in ("NSSK2_SCHOTT", "n-ssk2_schott", "N-SSK2_SCHOTT", "nssk2"):
+        assert np.array_equal(lookup(spelling).index(lam), ref), spelling
+    assert lookup("NSSK2_SCHOTT").name == "N-SSK2_SCHOTT" and lookup("nssk2").name == "N-SSK2"
+
+
+def test_the_built_in_table_keeps_its_values():
+    """The 11 built-in entries resolve to themselves; those that SCHOTT publishes agree with
+    the catalog entry of the same glass to the last bit (one source, refractiveindex.info)."""
+    lam = np.array([450.0, 587.5618, 650.0])
+    for m in catalog().values():
+        assert lookup(m.name) is m
+    for name in ("N-BK7", "F2", "N-SK16", "N-SF11", "N-SF5", "N-LAK22"):
+        v = lookup(name + "_SCHOTT")
+        assert v.kind == "vendor" and np.abs(v.index(lam) - lookup(name).index(lam)).max() <= 1e-15, name
+
+
+@pytest.mark.parametrize("name,msg", [
+    ("SF6", r"'SF6': in several catalogs \(HIKARI, SCHOTT\); name one"),
+    ("NBK7_OHARA", r"NBK7 is not in the OHARA catalog but in SCHOTT"),
+    ("N-SF111", r"unknown material 'N-SF111': close matches: N-SF11"),
+    ("unobtainium", r"unknown material 'unobtainium': allowed 'air'"),
+])
+def test_unknown_or_ambiguous_glass_names_are_refused(name, msg):
+    with pytest.raises(MaterialError, match=msg):
+        lookup(name)
+
+
+def test_a_design_in_vendor_glass_loads_traces_and_is_listed(tmp_path, capsys):
+    import pickle
+
+    from conftest import SCENES
+
+    from lfsim.cli import main
+
+    text = (SCENES / "cooke_triplet.toml").read_text()
+    assert 'material = "SK16"' in text
+    path = tmp_path / "triplet_ohara.toml"
+    path.write_text(text.replace('material = "SK16"', 'material = "S-BSM81_OHARA"'))
+    assert main(["lens", str(path), "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)["surfaces"]
+    glass = [r for r in rows if r["material"] == "S-BSM81_OHARA"]
+    assert glass and glass[0]["nd"] == pytest.approx(1.64000, abs=2e-5)  # OHARA S-BSM81: nd 1.64000
+    assert main(["first-order", str(path), "--json"]) == 0
+    assert math.isfinite(json.loads(capsys.readouterr().out)["efl"])
+    m = lookup("S-BSM81_OHARA")
+    assert pickle.loads(pickle.dumps(m)).index(587.5618) == m.index(587.5618)  # Dask ships designs
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text.replace('material = "SK16"', 'material = "SF6"', 1))
+    assert main(["lens", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert "bad.toml" in err and "SF6" in err and "several catalogs" in err and err.count("\n") == 1

@@ -8,6 +8,8 @@ Kinds of material:
 
 * catalog glasses and plastics (``data/materials.toml``), by name,
   case-insensitive: Sellmeier or power-series formulas with their sources;
+* any other glass of the SCHOTT, OHARA, HOYA, CDGM, HIKARI, SUMITA, LZOS and
+  CRYSTRAN catalogs (:mod:`lfsim.optics.glass_catalogs`), by its catalog name;
 * a constant index (a number in the design file);
 * an (nd, Vd) model glass: ``n(λ) = A + B/λ²`` through nd at the d line
   (587.5618 nm) with ``nF − nC = (nd − 1)/Vd``;
@@ -16,6 +18,7 @@ Kinds of material:
 
 from __future__ import annotations
 
+import difflib
 import math
 import tomllib
 from dataclasses import dataclass, field
@@ -66,6 +69,10 @@ class Material:
         elif self.kind == "abbe":
             A, B = self.coefficients
             n = A + B / um2
+        elif self.kind == "vendor":
+            from .glass_catalogs import refractive_index
+
+            n = refractive_index(self.coefficients, lam)
         else:  # pragma: no cover - guarded by constructors
             raise MaterialError(f"unknown material kind {self.kind!r}")
         return float(n) if n.ndim == 0 else n
@@ -130,11 +137,34 @@ def catalog() -> dict[str, Material]:
     return out
 
 
+def vendor_glass(name: str) -> Material:
+    """A glass of the vendor catalogs (:mod:`lfsim.optics.glass_catalogs`), by its catalog
+    name, the vendor given as a suffix (``NSSK2_SCHOTT``) or inferred."""
+    from . import glass_catalogs as gc
+
+    try:
+        hit = gc.resolve(name)
+    except ValueError as e:
+        raise MaterialError(str(e)) from None
+    if hit is None:
+        builtin = {gc._key(m.name): m.name for m in catalog().values()}
+        near = [builtin[k] for k in difflib.get_close_matches(gc._key(name), list(builtin), n=3, cutoff=0.7)]
+        near += [m for m in gc.close_matches(name) if gc._key(m.split(' (')[0]) not in builtin]
+        hint = f"close matches: {', '.join(near)}; " if near else ""
+        raise MaterialError(
+            f"unknown material {name!r}: {hint}allowed 'air', a number, {{nd=..., vd=...}}, "
+            f"{', '.join(sorted(builtin.values()))} or a glass of the {', '.join(gc.VENDORS)} catalogs")
+    canonical, ref = hit
+    return Material(canonical, "vendor", ref, gc.range_nm(ref),
+                    f"{ref[1]} catalog via refractiveindex.info ({'/'.join(ref)})")
+
+
 def lookup(spec) -> Material:
     """Resolve a design-file material value.
 
-    ``spec`` may be ``"air"``, a catalog name (case-insensitive), a number
-    (constant index) or a mapping ``{nd = ..., vd = ...}``.
+    ``spec`` may be ``"air"``, a name of the built-in table (case-insensitive) or of a vendor
+    catalog (:func:`vendor_glass`), a number (constant index) or a mapping
+    ``{nd = ..., vd = ...}``.
     """
     if isinstance(spec, bool):
         raise MaterialError(f"a material cannot be a boolean ({spec!r})")
@@ -160,8 +190,5 @@ def lookup(spec) -> Material:
         key = spec.strip().upper()
         if key in cat:
             return cat[key]
-        raise MaterialError(
-            f"unknown material {spec!r}: allowed 'air', a number, {{nd=..., vd=...}} "
-            f"or one of {', '.join(sorted(m.name for m in cat.values()))}"
-        )
+        return vendor_glass(spec)
     raise MaterialError(f"a material must be a name, a number or a table, got {spec!r}")
