@@ -97,6 +97,18 @@ def test_vendor_glasses_reproduce_their_data_sheets(name, printed):
     assert m.in_range(450.0) and m.in_range(656.2725)
 
 
+@pytest.mark.parametrize("name,nd", [("PS", 1.5905), ("POLYSTYRENE", 1.5905), ("SAN", 1.567)])
+def test_molding_plastics_beyond_the_built_in_ones(name, nd):
+    """Polystyrene and SAN from the same measurements as the built-in PMMA, PC and E48R
+    (Sultanova et al. 2009): nd as the resin makers state it, to the fit's accuracy."""
+    m = lookup(name)
+    assert m.kind == "vendor" and m.nd == pytest.approx(nd, abs=0.005) and m.in_range(486.1327)
+    same = lookup("PMMA")  # the database page of the built-in PMMA gives the built-in values
+    from lfsim.optics.glass_catalogs import refractive_index
+    assert refractive_index(("organic", "poly_methyl_methacrylate", "Sultanova"), 587.5618) == pytest.approx(
+        same.nd, abs=1e-12)
+
+
 def test_vendor_names_resolve_as_the_catalogs_spell_them():
     lam = np.array([450.0, 587.5618, 650.0])
     ref = lookup("N-SSK2").index(lam)

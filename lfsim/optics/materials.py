@@ -153,10 +153,10 @@ def vendor_glass(name: str) -> Material:
         hint = f"close matches: {', '.join(near)}; " if near else ""
         raise MaterialError(
             f"unknown material {name!r}: {hint}allowed 'air', a number, {{nd=..., vd=...}}, "
-            f"{', '.join(sorted(builtin.values()))} or a glass of the {', '.join(gc.VENDORS)} catalogs")
+            f"{', '.join(sorted(builtin.values()))}, {', '.join(sorted({v[0] for v in gc.PLASTICS.values()}))} "
+            f"or a glass of the {', '.join(gc.VENDORS)} catalogs")
     canonical, ref = hit
-    return Material(canonical, "vendor", ref, gc.range_nm(ref),
-                    f"{ref[1]} catalog via refractiveindex.info ({'/'.join(ref)})")
+    return Material(canonical, "vendor", ref, gc.range_nm(ref), f"refractiveindex.info ({'/'.join(ref)})")
 
 
 def lookup(spec) -> Material:
