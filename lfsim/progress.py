@@ -162,6 +162,7 @@ class LogBar:
         self.closed = bool(disable)
         self.postfix = ""
         self._shown = None  # the count of the last line printed
+        self._first = None  # (time, count) of the first update
 
     def __iter__(self):
         for item in self.iterable:
@@ -174,7 +175,16 @@ class LogBar:
         post = f", {self.postfix}" if self.postfix else ""
         if self.total:
             frac = min(1.0, self.n / self.total)
-            eta = f", ETA {el / frac - el:.0f} s" if 0 < frac < 1 else ""
+            eta = ""
+            if 0 < frac < 1:
+                # The rate since the first update, once there is one: the time before it holds
+                # the set-up (kernel compiles, first loads) that the remaining items do not repeat.
+                first = self._first
+                if first is not None and self.n > first[1]:
+                    left = (time.monotonic() - first[0]) / (self.n - first[1]) * (self.total - self.n)
+                else:
+                    left = el / frac - el
+                eta = f", ETA {left:.0f} s"
             return (f"{self.desc}: {self.n}/{self.total} {self.unit} ({100 * frac:.0f}%), "
                     f"{el:.0f} s elapsed{eta}{post}")
         return f"{self.desc}: {self.n} {self.unit}, {el:.0f} s elapsed{post}"
@@ -187,6 +197,8 @@ class LogBar:
 
     def update(self, n: int = 1) -> None:
         self.n += int(n)
+        if self._first is None:
+            self._first = (time.monotonic(), self.n)
         touch()
         now = time.monotonic()
         if not self.closed and now - self.last >= self.interval:

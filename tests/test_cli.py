@@ -209,6 +209,23 @@ def test_progress_prints_lines_in_a_log():
     assert lines[2].startswith("sub-systems: 4/4 sub (100%)") and lines[2].endswith("cost=1.5")
     assert len(lines) == 3  # the closing line does not repeat the last update's
     assert "\r" not in out.getvalue()
+    # The ETA counts the rate after the first item: the set-up before it (compiles) is not
+    # repeated, so 10 s to the first of 10 items, then 1 s per item, leaves 8 s, not 80 s.
+    import lfsim.progress as prog
+
+    now = [0.0]
+    real = prog.time.monotonic
+    prog.time.monotonic = lambda: now[0]
+    try:
+        eta_out = io.StringIO()
+        e = LogBar(total=10, desc="images", stream=eta_out, interval=0.0)  # t0 = 0
+        now[0] = 10.0
+        e.update(1)  # the first item, set-up included
+        now[0] = 11.0
+        e.update(1)  # the second, 1 s later
+    finally:
+        prog.time.monotonic = real
+    assert eta_out.getvalue().splitlines()[-1].endswith("ETA 8 s"), eta_out.getvalue()
     quiet = io.StringIO()
     LogBar(total=3, stream=quiet, interval=0.0, disable=True).update(3)
     assert quiet.getvalue() == ""
