@@ -39,7 +39,8 @@ PLASTICS = {
 }
 
 
-def _key(name: str) -> str:
+def name_key(name: str) -> str:
+    """A glass name without case, hyphens or spaces: what two spellings must share."""
     return re.sub(r"[^A-Z0-9]", "", name.upper())
 
 
@@ -52,7 +53,7 @@ def index() -> dict[str, list[tuple[str, str, str, str]]]:
     for m in ri.search(shelf="specs"):
         vendor = m.book.split("-")[0].upper()
         if vendor in VENDORS:
-            out.setdefault(_key(m.page), []).append((vendor, m.shelf, m.book, m.page))
+            out.setdefault(name_key(m.page), []).append((vendor, m.shelf, m.book, m.page))
     return out
 
 
@@ -86,9 +87,9 @@ def resolve(name: str) -> tuple[str, tuple[str, str, str]] | None:
     """``(canonical name, (shelf, book, page))`` of a catalog glass, or None where no vendor has
     it. Raises ``ValueError`` (one line) where several vendors have it and none is named."""
     glass, vendor = split_vendor(name)
-    if vendor is None and _key(glass) in PLASTICS:
-        return PLASTICS[_key(glass)]
-    hits = index().get(_key(glass), [])
+    if vendor is None and name_key(glass) in PLASTICS:
+        return PLASTICS[name_key(glass)]
+    hits = index().get(name_key(glass), [])
     if vendor is not None:
         others = sorted({h[0] for h in hits if h[0] != vendor})
         hits = [h for h in hits if h[0] == vendor]
@@ -109,7 +110,7 @@ def close_matches(name: str, n: int = 5) -> list[str]:
     """Catalog glasses spelled like ``name``, as ``PAGE (VENDOR)``."""
     glass, vendor = split_vendor(name)
     idx = index()
-    keys = difflib.get_close_matches(_key(glass), list(idx), n=n, cutoff=0.7)
+    keys = difflib.get_close_matches(name_key(glass), list(idx), n=n, cutoff=0.7)
     out = []
     for k in keys:
         for v, _, _, page in idx[k]:

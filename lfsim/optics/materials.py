@@ -147,9 +147,9 @@ def vendor_glass(name: str) -> Material:
     except ValueError as e:
         raise MaterialError(str(e)) from None
     if hit is None:
-        builtin = {gc._key(m.name): m.name for m in catalog().values()}
-        near = [builtin[k] for k in difflib.get_close_matches(gc._key(name), list(builtin), n=3, cutoff=0.7)]
-        near += [m for m in gc.close_matches(name) if gc._key(m.split(' (')[0]) not in builtin]
+        builtin = {gc.name_key(m.name): m.name for m in catalog().values()}
+        near = [builtin[k] for k in difflib.get_close_matches(gc.name_key(name), list(builtin), n=3, cutoff=0.7)]
+        near += [m for m in gc.close_matches(name) if gc.name_key(m.split(' (')[0]) not in builtin]
         hint = f"close matches: {', '.join(near)}; " if near else ""
         raise MaterialError(
             f"unknown material {name!r}: {hint}allowed 'air', a number, {{nd=..., vd=...}}, "
