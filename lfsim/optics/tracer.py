@@ -41,7 +41,7 @@ class Status(IntEnum):
     NOT_CONVERGED = 4  # Newton iteration did not converge
     WRONG_LENSLET = 5  # crossed into a neighbouring lenslet's cell
     NO_TIR = 6  # refraction possible where total internal reflection was required
-    BEHIND = 7  # the surface lies behind the ray (it would travel backwards); not on virtual or dummy surfaces
+    BEHIND = 7  # the surface lies behind the ray (it would travel backwards); not on virtual, dummy or ideal (paraxial) surfaces
 
 
 @dataclass
@@ -50,6 +50,19 @@ class RayState:
 
     p: object
     d: object
+
+
+@dataclass
+class ProbeHit:
+    """Where rays met surface ``i`` (:meth:`SequentialTracer.trace` ``probe``): the local hit
+    ``x, y`` (lenslet-relative inside an array, mm), the array's pitch ``(px, py)`` and
+    cell ``(m, n)`` (None off an array). Valid where the ray's status is still OK."""
+
+    i: int
+    x: object
+    y: object
+    pitch: tuple | None
+    cell: tuple | None
 
 
 @dataclass
@@ -231,7 +244,7 @@ class SequentialTracer:
     # ---------------------------------------------------------------- trace
     def trace(self, P, rays: RayState, block=None, lenslet=None, record: bool = False,
               first: int = 0, last: int | None = None, clip: bool = True,
-              cells: str = "fixed", kick=None) -> TraceOutput:
+              cells: str = "fixed", kick=None, probe: list | None = None) -> TraceOutput:
         """Trace ``rays`` through every surface; see the module docstring.
 
         Parameters
@@ -270,6 +283,11 @@ class SequentialTracer:
             (``WRONG_LENSLET``), as if the cells were baffled. ``"per_surface"``
             (a monolithic array without baffles, for rendering): each array
             surface is met on the lenslet where the ray actually crosses it.
+        probe : list, optional
+            Filled with a :class:`ProbeHit` for every surface that carries a
+            clear aperture or belongs to a lenslet array: where the ray met
+            it, in the coordinates its edges are drawn in (the boundary
+            term of :mod:`lfsim.render.boundary` holds those points still).
         """
         if cells not in ("fixed", "per_surface"):
             raise ValueError(f"cells = {cells!r}: expected 'fixed' or 'per_surface'")
@@ -393,9 +411,11 @@ class SequentialTracer:
                                         self.newton_tol, self.newton_max_iter)
             fail(~ok, Status.MISSED, i)
             fail(ok & ~conv, Status.NOT_CONVERGED, i)
-            if not (s.virtual or s.interaction in ("none", "break")):
+            if not (s.virtual or s.interaction in ("none", "break", "paraxial")):
                 # A real surface is reached forwards (a rounding's worth of slack); dummy
-                # planes are references, reached along the ray's line either way.
+                # planes are references, reached along the ray's line either way, and so
+                # are ideal (paraxial) lenses: planes of zero thickness, of which two in
+                # contact tilt against each other (else half the rays die at any tilt).
                 fail(ok & (t < -self.const(self.newton_tol * 10.0)), Status.BEHIND, i)
             t = dr.select(ok, t, 0.0)
             hit = dr.fma(dl, t, pl)
@@ -419,6 +439,10 @@ class SequentialTracer:
                     # lies beyond the array's outer edge.
                     fail(crossed, Status.VIGNETTED, i)
                 fail(crossed, Status.WRONG_LENSLET, i)
+
+            if probe is not None and (s.aperture is not None or offset is not None):
+                probe.append(ProbeHit(i, hit.x, hit.y, (px, py) if offset is not None else None,
+                                      (m_idx, n_idx) if offset is not None else None))
 
             # Interaction.
             n1 = pr(self.vector.media[i])

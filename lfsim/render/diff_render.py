@@ -192,6 +192,32 @@ def flat_leaves(arrays: list, R_vw, o_vw) -> list:
     return out
 
 
+def ideal_aim(px, py, fov_deg, focus_mm: float) -> np.ndarray:
+    """Where the ideal eye's rays of film samples ``(px, py)`` (in [0, 1), row 0 at the
+    top) aim, float64 (N, 3): the focus point on the sphere of radius ``focus_mm`` about
+    the pupil centre, or the chief direction at infinity (angular mapping, as
+    :mod:`lfsim.render.eye`)."""
+    hx, hy = (math.radians(float(f)) * 0.5 for f in fov_deg)
+    tx = np.tan((2.0 * np.asarray(px, dtype=np.float64) - 1.0) * hx)
+    ty = np.tan((1.0 - 2.0 * np.asarray(py, dtype=np.float64)) * hy)
+    c = np.stack([tx, ty, -np.ones_like(tx)], axis=1)
+    c /= np.linalg.norm(c, axis=1, keepdims=True)
+    return c * focus_mm if math.isfinite(focus_mm) else c
+
+
+def ideal_rays(q, aim, finite: bool, xp=np):
+    """Origins and unit directions of ideal-eye rays from pupil points ``q`` toward
+    ``aim`` (:func:`ideal_aim`); ``xp``: numpy (arrays (N, 2), (N, 3)) or a Dr.Jit
+    Array3 type (``q`` a pair of arrays, ``aim`` an Array3)."""
+    if xp is np:
+        o = np.column_stack([q, np.zeros(len(q))])
+        d = aim - o if finite else aim.copy()
+        return o, d / np.linalg.norm(d, axis=1, keepdims=True)
+    o = xp(q[0], q[1], 0.0)
+    d = xp(aim.x - q[0], aim.y - q[1], aim.z) if finite else xp(aim)
+    return o, dr.normalize(d)
+
+
 @dataclass
 class RayBatch:
     """Per-sample result of :meth:`AnalyticRenderer.trace` (Dr.Jit arrays)."""
@@ -271,6 +297,7 @@ class AnalyticRenderer:
         self.W, self.H = (int(v) for v in view.resolution)
         self.spp = int(view.spp)
         self.n_pixels = self.W * self.H
+        self._aims = []  # per focus: (q, aim, finite) of the ideal eye's samples (float64), else None
         self._rays = [self._eye_rays(float(f)) for f in view.focus_mm]
 
     # ------------------------------------------------------------ set-up
@@ -306,6 +333,17 @@ class AnalyticRenderer:
             o = np.stack([np.asarray(ray.o[i], dtype=np.float64) for i in range(3)], axis=1)
             d = np.stack([np.asarray(ray.d[i], dtype=np.float64) for i in range(3)], axis=1)
             ok = np.asarray(w[0]) > 0
+        if view.eye_model == "ideal":
+            # The ideal eye's rays again in float64, as functions of the pupil point q
+            # (the sensor's float32 origin, taken as exact): q → the focus point, or
+            # along the chief direction at infinity. The boundary term differentiates
+            # them in q (:mod:`lfsim.render.boundary`).
+            q = o[:, :2].copy()
+            aim = ideal_aim(f32(px).astype(np.float64), f32(py).astype(np.float64), tuple(self.fov_deg), focus_mm)
+            o, d = ideal_rays(q, aim, math.isfinite(focus_mm))
+            self._aims.append((q, aim, math.isfinite(focus_mm)))
+        else:
+            self._aims.append(None)
         T = self.T
         c = backend.from_numpy(T.Float, *(a.astype(T.np_dtype) for a in (*o.T, *d.T, ok.astype(np.float64))))
         return T.Array3(*c[:3]), T.Array3(*c[3:6]), c[6] > 0.5
@@ -321,19 +359,21 @@ class AnalyticRenderer:
         R_vw, o_vw = self.map.eye_frame(frames)
         return self.map.reverse_params(P, frames), R_vw, o_vw
 
-    def trace(self, P, k: int = 0, optics=None) -> RayBatch:
+    def trace(self, P, k: int = 0, optics=None, rays=None, probe: list | None = None) -> RayBatch:
         """Trace the eye rays of focus ``k`` to the display at design vector ``P``
-        (or at ``optics`` = :meth:`optics` output, e.g. detached leaves)."""
+        (or at ``optics`` = :meth:`optics` output, e.g. detached leaves). ``rays``:
+        other eye rays ``(o, d, ok)`` in the viewing-window frame; ``probe``: filled
+        with the tracer's :class:`~lfsim.optics.tracer.ProbeHit` records."""
         T = self.T
         P_rev, R_vw, o_vw = optics if optics is not None else self.optics(P)
-        o_l, d_l, ok_eye = self._rays[k]
+        o_l, d_l, ok_eye = self._rays[k] if rays is None else rays
         n = dr.width(o_l)
         # An opaque (evaluated) index, as the tracer's default block.
         zero = dr.opaque(T.UInt32, 0, n)
         R = dr.gather(T.Matrix3, R_vw, zero)
         o = R @ o_l + dr.gather(T.Array3, o_vw, zero)
         d = R @ d_l
-        out = self.map.rev.trace(P_rev, RayState(o, d), block=zero, cells=self.view.cells)
+        out = self.map.rev.trace(P_rev, RayState(o, d), block=zero, cells=self.view.cells, probe=probe)
         lay = self.layout
         pitch = lay.pixel_pitch
         fx = (out.p.x - lay.center[0]) / pitch + 0.5 * lay.width - 0.5
@@ -374,7 +414,7 @@ class AnalyticRenderer:
         b = batch if batch is not None else self.trace(P, k, optics)
         return [dr.block_sum(v, self.spp) / self.spp for v in b.value]
 
-    def backward(self, P, objective, wrt=None):
+    def backward(self, P, objective, wrt=None, extra=None):
         """Reverse-mode gradient of ``objective(optics)`` (a Dr.Jit scalar built from
         :meth:`image` / :meth:`trace` with ``optics=``) with respect to the design vector.
 
@@ -385,6 +425,8 @@ class AnalyticRenderer:
         forward-mode pass per parameter in ``wrt`` (indices; default all).
         (Dr.Jit 1.5 on LLVM lost part of the gradient when the reverse pass also
         went through the map, whose frames read the same leaf more than once.)
+        ``extra(optics)``: a scalar whose derivative is added but whose value is not
+        (the boundary term, :meth:`lfsim.render.boundary.BoundaryTerm.objective`).
         Returns ``(objective value, dObjective/dP)`` (float, numpy array; zero
         outside ``wrt``).
         """
@@ -393,7 +435,9 @@ class AnalyticRenderer:
         for v in leaves:
             dr.enable_grad(v)
         value = objective(tuple(leaves))
-        dr.backward(value)
+        # ``extra``: a term differentiated with the objective but not part of its value
+        # (the boundary term's B, :mod:`lfsim.render.boundary`).
+        dr.backward(value if extra is None else value + extra(tuple(leaves)))
         adj = [dr.detach(dr.grad(v)) for v in leaves]
         return float(value[0]), self._pull_back(P, flat_leaves(adj[0:1], adj[1], adj[2]), wrt)
 

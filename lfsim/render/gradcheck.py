@@ -59,6 +59,10 @@ MOTION_PX = 1e-3
 EDGE_REL_STEP = 1e-3
 #: A parameter is boundary-type when its edge term is at least this share of |fd|.
 BOUNDARY_SHARE = 0.005
+#: The total derivative passes when it is within this share of the full difference at the
+#: edge step, or within :data:`TOTAL_SIGMAS` of that difference's Monte Carlo noise.
+TOTAL_REL_TOL = 0.05
+TOTAL_SIGMAS = 3.0
 
 
 def fd_step(name: str, value: float, unit: str, rel: float = REL_STEP) -> float:
@@ -125,16 +129,34 @@ class RenderLoss:
                 total = total + dr.sum(dr.square(img[c] - ref[c])) * self.norm
         return total
 
+    def sample_weights(self, values, k: int) -> np.ndarray:
+        """(N, C) derivative of the loss with respect to each sample's value at focus ``k``:
+        ``2 norm (I_p − R_p) / spp`` of the sample's pixel."""
+        r = self.r
+        img = r.image_numpy(values, k).reshape(r.n_pixels, -1)
+        return np.repeat(2.0 * self.norm * (img - self.targets_np[k]) / r.spp, r.spp, axis=0)
+
     def value(self, values) -> float:
         with dr.suspend_grad():
             return float(self(self.r.params(values))[0])
 
 
-def gradient(loss: RenderLoss, values=None, wrt=None):
+def gradient(loss: RenderLoss, values=None, wrt=None, total: bool = False, boundary_options=None):
     """(L, dL/dP) by reverse-mode AD at ``values`` (numpy, full design vector);
-    ``wrt``: indices of the entries wanted (default all)."""
+    ``wrt``: indices of the entries wanted (default all). ``total``: the total
+    derivative, the boundary term of the visibility edges included
+    (:mod:`lfsim.render.boundary`; the ideal eye only); else the interior term."""
     r = loss.r
-    return r.backward(r.params(values), lambda optics: loss(None, optics), wrt)
+    extra = None
+    if total:
+        from .boundary import BoundaryTerm
+
+        bt = BoundaryTerm(r, **(boundary_options or {}))
+        weights = [loss.sample_weights(values, k) for k in range(len(r.view.focus_mm))]
+
+        def extra(optics):
+            return sum((bt.objective(optics, k, w) for k, w in enumerate(weights)), r.T.Float(0.0))
+    return r.backward(r.params(values), lambda optics: loss(None, optics), wrt, extra=extra)
 
 
 def directional(loss: RenderLoss, direction, values=None) -> float:
@@ -174,6 +196,9 @@ class Difference:
     #: the steps j·h it combines (``points`` > 1; 0 otherwise): the float32 rounding
     #: noise of the estimate itself, conservative where the steps' truncation differs.
     fd_interior_noise: float = 0.0
+    #: Monte Carlo standard error of ``fd`` (:func:`_fd_noise`): what another set of samples
+    #: would change, the yardstick of a total derivative against it.
+    fd_noise: float = 0.0
 
     @property
     def boundary_term(self) -> float:
@@ -325,12 +350,35 @@ def difference(loss: RenderLoss, values, i: int, h: float, points: int = 1, kink
 
     w = np.array([j * j for j in js], dtype=np.float64)
     D_all, D_int = diffs(L_all), diffs(L_int)
+    fd_noise = _fd_noise(loss, L_all[js[0]], h)
     fd_int = float(np.sum(w * D_int) / np.sum(w))
     noise = 0.0
     if len(js) > 1:
         # Weighted spread of the D_j about their mean, over (points − 1) degrees of freedom.
         noise = float(np.sqrt(np.sum(w * (D_int - fd_int) ** 2) / np.sum(w) / (len(js) - 1)))
-    return Difference(h, float(np.sum(w * D_all) / np.sum(w)), fd_int, n, flags, noise)
+    return Difference(h, float(np.sum(w * D_all) / np.sum(w)), fd_int, n, flags, noise, fd_noise)
+
+
+def _fd_noise(loss: RenderLoss, sides, h: float) -> float:
+    """Monte Carlo standard error of the central difference ``(L₊ − L₋)/2h`` from the spread
+    of its samples within each pixel (first order in the pixel means).
+
+    Per pixel ``ΔL_p = norm Σ_c (I₊ − I₋)(I₊ + I₋ − 2R)``; a sample s of the pixel enters
+    it through ``z_s = 2 norm/spp Σ_c [(I₊ − R) f₊,s − (I₋ − R) f₋,s]``, so
+    ``Var ΔL_p ≈ spp · var(z)`` (the samples of a pixel are independent), and pixels and
+    focus distances add. ``sides``: per side (−, +) the per-focus (N, C) sample values.
+    """
+    r = loss.r
+    var = 0.0
+    for k in range(len(sides[0])):
+        fm = sides[0][k].reshape(r.n_pixels, r.spp, -1)
+        fp = sides[1][k].reshape(r.n_pixels, r.spp, -1)
+        ref = loss.targets_np[k][:, None, :]
+        Ip, Im = fp.mean(axis=1, keepdims=True), fm.mean(axis=1, keepdims=True)
+        z = 2.0 * loss.norm / r.spp * np.sum((Ip - ref) * fp - (Im - ref) * fm, axis=-1)
+        if r.spp > 1:
+            var += float(np.sum(r.spp * np.var(z, axis=1, ddof=1)))
+    return float(np.sqrt(var) / (2.0 * h))
 
 
 def _texel_cell(lay, x, y):
@@ -384,8 +432,14 @@ def gradcheck(renderer, targets, names: list[str], values=None, rel_step: float 
     v0 = r.values0.copy() if values is None else np.asarray(values, dtype=np.float64)
     units = _units(r)
     t0 = time.perf_counter()
-    L0, grad = gradient(loss, v0, [r.index[n] for n in names])
+    wrt = [r.index[n] for n in names]
+    L0, grad = gradient(loss, v0, wrt)
     t_rev = time.perf_counter() - t0
+    grad_total, t_total = None, None
+    if total_available(r):
+        t0 = time.perf_counter()
+        _, grad_total = gradient(loss, v0, wrt, total=True)
+        t_total = time.perf_counter() - t0
     rows, t_fwd, t_fd = [], 0.0, 0.0
     for name in names:
         i = r.index[name]
@@ -425,6 +479,18 @@ def gradcheck(renderer, targets, names: list[str], values=None, rel_step: float 
                "bias": (-B / total) if total != 0.0 else 0.0,
                "boundary": bool(edge.edge_samples > 0 and abs(B) >= BOUNDARY_SHARE * abs(total)),
                "forward_reverse_rel": _rel(ad_f, ad)}
+        # The total derivative (boundary term included) against the full difference at the
+        # edge step, with that difference's own Monte Carlo noise as the yardstick.
+        rec["fd_total"], rec["fd_noise"] = edge.fd, edge.fd_noise
+        if grad_total is not None:
+            at = float(grad_total[i])
+            rec["ad_total"] = at
+            rec["ad_boundary"] = at - ad
+            rec["total_rel_err"] = _rel(at, edge.fd)
+            rec["total_sigma"] = abs(at - edge.fd) / edge.fd_noise if edge.fd_noise > 0 else (
+                0.0 if at == edge.fd else float("inf"))
+            rec["total_ok"] = bool(abs(at - edge.fd) <= max(TOTAL_REL_TOL * abs(edge.fd),
+                                                            TOTAL_SIGMAS * edge.fd_noise))
         if sweep:
             rec["fd_sweep"] = [{"rel_step": rel, "step": d.step, "fd": d.fd, "fd_interior": d.fd_interior,
                                 "ad_kept": kept(d), "interior_rel_err": _rel(kept(d), d.fd_interior),
@@ -432,10 +498,19 @@ def gradcheck(renderer, targets, names: list[str], values=None, rel_step: float 
                                for rel, d in sw]
         rows.append(rec)
         if log:
-            log(f"{name}: ad {ad:.6g}  fd {main.fd:.6g}  interior {main.fd_interior:.6g}  edge term {B:.3g}")
+            tot = f"  total {rec['ad_total']:.6g} vs {edge.fd:.6g} ± {edge.fd_noise:.2g}" if "ad_total" in rec else ""
+            log(f"{name}: ad {ad:.6g}  fd {main.fd:.6g}  interior {main.fd_interior:.6g}  edge term {B:.3g}{tot}")
+    seconds = {"reverse": round(t_rev, 3), "forward": round(t_fwd, 3), "finite_differences": round(t_fd, 3)}
+    if t_total is not None:
+        seconds["reverse_total"] = round(t_total, 3)
     return {"loss": L0, "params": rows, "samples": r.n_pixels * r.spp * len(r.view.focus_mm),
-            "seconds": {"reverse": round(t_rev, 3), "forward": round(t_fwd, 3),
-                        "finite_differences": round(t_fd, 3)}}
+            "total": grad_total is not None, "seconds": seconds}
+
+
+def total_available(r) -> bool:
+    """Whether the renderer's total derivative exists: the analytic path with the ideal eye
+    (:mod:`lfsim.render.boundary`)."""
+    return getattr(r, "path", "analytic") == "analytic" and all(a is not None for a in getattr(r, "_aims", [None]))
 
 
 def _rel(a: float, b: float) -> float:
