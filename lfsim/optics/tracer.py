@@ -41,7 +41,7 @@ class Status(IntEnum):
     NOT_CONVERGED = 4  # Newton iteration did not converge
     WRONG_LENSLET = 5  # crossed into a neighbouring lenslet's cell
     NO_TIR = 6  # refraction possible where total internal reflection was required
-    BEHIND = 7  # the surface lies behind the ray (it would travel backwards); not on virtual, dummy or ideal (paraxial) surfaces
+    BEHIND = 7  # the surface lies behind the ray (it would travel backwards); not on virtual, dummy or ideal surfaces
 
 
 @dataclass
