@@ -156,6 +156,8 @@ def gradient(loss: RenderLoss, values=None, wrt=None, total: bool = False, bound
 
         def extra(optics):
             return sum((bt.objective(optics, k, w) for k, w in enumerate(weights)), r.T.Float(0.0))
+    if extra is None:  # the mesh path's backward takes no extra term
+        return r.backward(r.params(values), lambda optics: loss(None, optics), wrt)
     return r.backward(r.params(values), lambda optics: loss(None, optics), wrt, extra=extra)
 
 
