@@ -224,11 +224,7 @@ def sample_derivatives(loss: RenderLoss, values, i: int, speeds: list | None = N
     e[i] = 1.0
     out = []
     for k in range(len(r.view.focus_mm)):
-        with dr.suspend_grad():
-            img = r.image(r.params(v0), k)
-            dr.eval(img)
-            img = np.stack([np.asarray(c, dtype=np.float64) for c in img], axis=-1)
-        w = 2.0 * loss.norm * (img - loss.targets_np[k]) / r.spp  # (n_pixels, C)
+        w = loss.sample_weights(v0, k)  # (N, C)
         t = dr.zeros(T.Float, 1)
         dr.enable_grad(t)
         P = r.params(v0) + t * T.Float(e)
@@ -241,7 +237,7 @@ def sample_derivatives(loss: RenderLoss, values, i: int, speeds: list | None = N
         dr.eval(gx, gy, b.valid, *gv)  # one kernel (each read alone would re-render)
         g = np.stack([np.asarray(v, dtype=np.float64) for v in gv], axis=-1)
         g = np.where(np.isfinite(g), g, 0.0)
-        out.append(np.sum(np.repeat(w, r.spp, axis=0) * g, axis=-1))
+        out.append(np.sum(w * g, axis=-1))
         if speeds is not None:
             ok = np.asarray(dr.detach(b.valid), dtype=bool)
             sp = np.hypot(np.asarray(gx, dtype=np.float64), np.asarray(gy, dtype=np.float64))
@@ -652,7 +648,9 @@ def table(doc: dict) -> str:
                      f"{p['rel_err']:9.2e} "
                      f"{p['ad_kept']:12.5g} {p['fd_interior']:12.5g} {p['interior_rel_err']:9.2e} "
                      f"{p['fd_step']:9.2e} {p['boundary_term']:11.4g} {100 * p['bias']:7.1f}% "
-                     f"{p['edge_samples']:6d}  {kind}")
+                     f"{p['edge_samples']:6d}  {kind}"
+                     + (f"  total {p['ad_total']:.5g} vs {p['fd_total']:.5g} ± {p['fd_noise']:.2g} "
+                        f"({p['total_sigma']:.1f} σ{'' if p['total_ok'] else ', FAIL'})" if "ad_total" in p else ""))
     lines.append("AD, FD, AD kept, FD interior, edge term: d(loss)/d(parameter) per unit of the parameter "
                  "(the loss, a sum over focus distances of mean squared image differences, has no unit); "
                  "FD step in the parameter's unit")
