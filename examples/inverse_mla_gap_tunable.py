@@ -9,7 +9,8 @@ parameters. The "hardware" then has its display-to-MLA gap
 (``object.distance``, 4.5 mm) and its tunable-lens power (``TL.power``) off by
 +10 % and −10 %; both are recovered by damped least squares
 (:func:`lfsim.optimize.solvers.levenberg_marquardt`) on the per-pixel residuals
-``I(θ) − I_target``, with Jacobians from forward-mode Dr.Jit AD of
+``I(θ) − I_target`` (:class:`lfsim.render.inverse.FocalStackProblem`), with
+Jacobians from forward-mode Dr.Jit AD of
 :class:`lfsim.render.diff_render.AnalyticRenderer` (one pass per parameter).
 The estimates use common random numbers: the same eye samples for the targets
 and for every iterate (``--target-seed`` renders the targets with other samples
@@ -29,49 +30,10 @@ import sys
 import time
 from pathlib import Path
 
-import drjit as dr
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 PARAMS = ("object.distance", "TL.power")
-
-
-class FocalStackProblem:
-    """Least-squares problem of :mod:`lfsim.optimize.solvers`: residuals are the pixel
-    differences of every retinal image of the stack against its target."""
-
-    def __init__(self, renderer, targets, names=PARAMS, values=None):
-        self.r = renderer
-        self.idx = [renderer.index[n] for n in names]
-        self.base = renderer.values0.copy() if values is None else np.asarray(values, dtype=np.float64)
-        self.targets = [np.asarray(t, dtype=np.float64).ravel() for t in targets]
-        self.nk = len(targets)
-
-    def values(self, x):
-        v = self.base.copy()
-        v[self.idx] = x
-        return v
-
-    def residuals(self, x):
-        v = self.values(x)
-        return np.concatenate([self.r.image_numpy(v, k).ravel() - self.targets[k] for k in range(self.nk)])
-
-    def jacobian(self, x):
-        r = self.r
-        T = r.T
-        v = self.values(x)
-        cols = []
-        for i in self.idx:
-            e = np.zeros(len(r.names))
-            e[i] = 1.0
-            t = dr.zeros(T.Float, 1)
-            dr.enable_grad(t)
-            P = r.params(v) + t * T.Float(e)
-            imgs = [r.image(P, k) for k in range(self.nk)]
-            dr.forward_from(t)
-            cols.append(np.concatenate([np.stack([np.asarray(dr.grad(c), dtype=np.float64) for c in img],
-                                                 axis=-1).ravel() for img in imgs]))
-        return self.residuals(x), np.stack(cols, axis=1)
 
 
 def run(design_path=ROOT / "scenes/ini_ideal.toml", content_path=ROOT / "scenes/fig9_wall.toml",
@@ -83,6 +45,7 @@ def run(design_path=ROOT / "scenes/ini_ideal.toml", content_path=ROOT / "scenes/
     from lfsim.design.overrides import load_with_overrides
     from lfsim.optimize.solvers import levenberg_marquardt
     from lfsim.render.diff_render import AnalyticRenderer, ViewSpec
+    from lfsim.render.inverse import FocalStackProblem
 
     t_all = time.perf_counter()
     design = load_with_overrides(design_path, overrides or {})
@@ -101,7 +64,7 @@ def run(design_path=ROOT / "scenes/ini_ideal.toml", content_path=ROOT / "scenes/
                                  display=r.display)
         targets = [other.image_numpy(None, k) for k in range(len(focus_mm))]
     x0 = truth * (1.0 + np.asarray(perturbation, dtype=np.float64))
-    problem = FocalStackProblem(r, targets)
+    problem = FocalStackProblem(r, targets, PARAMS)
     t0 = time.perf_counter()
     res = levenberg_marquardt(problem, x0, max_iterations=int(iterations), ftol=1e-14, xtol=1e-12, gtol=1e-14)
     t_solve = time.perf_counter() - t0

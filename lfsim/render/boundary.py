@@ -192,19 +192,16 @@ class BoundaryTerm:
         a = backend.from_numpy(T.Float, *(aims[:, j].astype(T.np_dtype) for j in range(3)))
         return qs, qx, qy, T.Array3(*a)
 
-    def coefficients(self, leaves, k: int, weights: np.ndarray):
-        """Fixed coefficients of :meth:`objective` for focus ``k``.
-
-        ``weights``: (N, C) derivative of the objective with respect to each sample's
-        value (``a_s``). Returns ``(mask, [(kx, ky)] per family)`` as numpy arrays over
-        the 3N points, and the number of points that carry a term.
-        """
+    def geometry(self, leaves, k: int) -> dict:
+        """What the coefficients of focus ``k`` need from the trace, independent of the
+        objective: per point (the 4N of :meth:`_points`) the hit coordinates of every
+        family, their Jacobians in the pupil point, the sample values and their pupil
+        gradients, validity and cells. Two forward-mode passes in q (measured: one pass over
+        the points twice, one tangent per copy, ran 1.5x slower on ini_freeform_optimized)."""
         r = self.r
         T = r.T
         detached = [dr.detach(v) for v in leaves]
         qs, qx, qy, aim = self._dr_points(k)
-        n3 = qs.shape[0]
-        n = n3 // 4
         nf = len(self.families)
         prim, tan = None, [None, None]
         for axis in (0, 1):
@@ -227,20 +224,17 @@ class BoundaryTerm:
                         [np.asarray(c) for c in cells])
             dr.disable_grad(src)
         flat, values, valid, cells = prim
-        C = len(values)
-        g = np.stack(values, axis=1)  # (3N, C)
-        grad_g = np.stack([np.stack(tan[a][2 * nf:], axis=1) for a in (0, 1)], axis=-1)  # (3N, C, 2)
+        n = qs.shape[0] // 4
         # Same discrete path as the sample: valid, and the same cell on every array surface.
-        same = valid.copy()
+        same = valid & np.tile(valid[:n], 4)
         for cc in cells:
             same &= np.tile(cc[:n], 4) == cc
-        same = same & np.tile(valid[:n], 4)
-        # Per family: coordinates, Jacobian in q, margin → pupil-space distance, −J⁻¹.
-        wsum = np.zeros(n3)
+        # Per family: −J⁻¹ (the field per unit ∂θc) and the weight 1/δ² of the pupil-space
+        # distance δ to the family's nearest edge.
         Ms, ws = [], []
         for j, f in enumerate(self.families):
             c = np.stack([flat[2 * j], flat[2 * j + 1]], axis=1)
-            J = np.empty((n3, 2, 2))
+            J = np.empty((qs.shape[0], 2, 2))
             for a in (0, 1):
                 J[:, 0, a] = tan[a][2 * j]
                 J[:, 1, a] = tan[a][2 * j + 1]
@@ -253,44 +247,98 @@ class BoundaryTerm:
             dd = np.where(ok, det, 1.0)
             inv[:, 0, 0], inv[:, 1, 1] = J[:, 1, 1] / dd, J[:, 0, 0] / dd
             inv[:, 0, 1], inv[:, 1, 0] = -J[:, 0, 1] / dd, -J[:, 1, 0] / dd
-            M = np.where(ok[:, None, None], -inv, 0.0)
-            w = np.where(ok, 1.0 / np.maximum(dist, 1e-12 * self.R) ** 2, 0.0)
-            Ms.append(M)
-            ws.append(w)
-            wsum = wsum + w
+            Ms.append(np.where(ok[:, None, None], -inv, 0.0))
+            ws.append(np.where(ok, 1.0 / np.maximum(dist, 1e-12 * self.R) ** 2, 0.0))
+        wsum = np.sum(ws, axis=0)
+        beta = [np.where(wsum > 0, w / np.where(wsum > 0, wsum, 1.0), 0.0) for w in ws]
+        g = np.stack(values, axis=1)  # (4N, C)
+        grad_g = np.nan_to_num(np.stack([np.stack(tan[a][2 * nf:], axis=1) for a in (0, 1)], axis=-1))
+        return {"k": k, "qs": qs, "n": n, "g": g, "grad_g": grad_g, "valid": valid, "same": same,
+                "BM": [b[:, None, None] * M for b, M in zip(beta, Ms)]}
+
+    def coefficients(self, leaves, k: int, weights: np.ndarray, geom: dict | None = None):
+        """Fixed coefficients of :meth:`objective` for focus ``k``.
+
+        ``weights``: (N, C) derivative of the objective with respect to each sample's
+        value (``a_s``); ``geom``: :meth:`geometry` of these leaves (computed if not
+        given). Returns ``(mask, [(kx, ky)] per family)`` as numpy arrays over the 4N
+        points, and the number of points that carry a term.
+        """
+        G_ = self.geometry(leaves, k) if geom is None else geom
+        n, qs, g, valid, same = G_["n"], G_["qs"], G_["g"], G_["valid"], G_["same"]
+        n4 = qs.shape[0]
         # Sample-side factors: A = Σ_c a g (for the divergence), G = Σ_c a ∇g (for ∇g·𝒱).
-        a = np.zeros((n3, C))
+        a = np.zeros((n4, g.shape[1]))
         a[:n] = weights
-        A = np.sum(a * g, axis=1)
-        G = np.einsum("nc,nca->na", a, np.nan_to_num(grad_g))
-        A[:n] = np.where(valid[:n], A[:n], 0.0)
-        G[:n] = np.where(valid[:n, None], G[:n], 0.0)
+        A = np.where(valid[:n], np.sum(a[:n] * g[:n], axis=1), 0.0)
+        G = np.where(valid[:n, None], np.einsum("nc,nca->na", a[:n], G_["grad_g"][:n]), 0.0)
         ok_e = [same[n:2 * n], same[2 * n:3 * n]]  # stencil point along x / y usable
+        rim = slice(3 * n, 4 * n)
+        A_rim = np.sum(weights * g[rim], axis=1) * valid[rim]
+        nrm = qs[rim] / self.R
         out = []
         e_vec = np.eye(2)
-        for j in range(nf):
-            beta = np.where(wsum > 0, ws[j] / np.where(wsum > 0, wsum, 1.0), 0.0)
-            BM = beta[:, None, None] * Ms[j]  # β_f M_f  (3N, 2, 2)
-            kvec = np.zeros((n3, 2))
+        for BM in G_["BM"]:  # β_f M_f  (4N, 2, 2)
+            kvec = np.zeros((n4, 2))
             # centre: β M^T G − A Σ_e ok_e/ε β M^T e
-            kvec[:n] = np.einsum("nab,na->nb", BM[:n], G[:n])
+            kvec[:n] = np.einsum("nab,na->nb", BM[:n], G)
             for ax in (0, 1):
-                s = A[:n] * ok_e[ax] / self.eps
+                s = A * ok_e[ax] / self.eps
                 kvec[:n] -= s[:, None] * np.einsum("nab,a->nb", BM[:n], e_vec[ax])
                 sl = slice((ax + 1) * n, (ax + 2) * n)
                 kvec[sl] += s[:, None] * np.einsum("nab,a->nb", BM[sl], e_vec[ax])
             # Flux through the rim: −∮ g 𝒱·n ds / (πR²) = −(2/R) E_φ[g 𝒱·n].
-            sl = slice(3 * n, 4 * n)
-            A_rim = np.sum(weights * g[sl], axis=1) * valid[sl]
-            nrm = qs[sl] / self.R
-            kvec[sl] = -(2.0 / self.R) * A_rim[:, None] * np.einsum("nab,na->nb", BM[sl], nrm)
-            kvec = np.where(np.isfinite(kvec), kvec, 0.0)
-            out.append(kvec)
-        mask = np.zeros(n3, dtype=bool)
+            kvec[rim] = -(2.0 / self.R) * A_rim[:, None] * np.einsum("nab,na->nb", BM[rim], nrm)
+            out.append(np.where(np.isfinite(kvec), kvec, 0.0))
+        mask = np.zeros(n4, dtype=bool)
         mask[:n] = valid[:n]
         mask[n:3 * n] = np.concatenate(ok_e)
         mask[3 * n:] = valid[3 * n:]
         return mask, out, int(np.count_nonzero(mask))
+
+    def jacobian(self, values, wrt, k: int) -> np.ndarray:
+        """Boundary term of the per-pixel derivatives of focus ``k``'s image:
+        ``(H·W, C, len(wrt))``, the part of ``dI_p/dP_i`` that the interior (AD along
+        fixed samples) leaves out, for the design-vector entries ``wrt`` at ``values``.
+
+        The coefficients are those of :meth:`coefficients` with a sample's weight
+        ``1/spp`` on its own pixel and channel (linear in the weights, so one
+        :meth:`geometry` serves every channel); ``∂θ c_f`` comes from one forward-mode
+        pass per parameter over the 4N points, and each point's term goes to its
+        sample's pixel."""
+        r = self.r
+        T = r.T
+        P0 = r.params(values)
+        with dr.suspend_grad():
+            leaves = [dr.detach(v) for v in r.optics(P0)]
+        geom = self.geometry(leaves, k)
+        n = geom["n"]
+        C = geom["g"].shape[1]
+        pix = (np.arange(4 * n) % n) // r.spp
+        coef = []
+        for c in range(C):
+            w = np.zeros((n, C))
+            w[:, c] = 1.0 / r.spp
+            mask, kv, _ = self.coefficients(leaves, k, w, geom)
+            coef.append([np.where(mask[:, None], kk, 0.0) for kk in kv])
+        qs, qx, qy, aim = self._dr_points(k)
+        base = np.asarray(values if values is not None else r.values0, dtype=np.float64)
+        out = np.zeros((r.n_pixels, C, len(wrt)))
+        for col, i in enumerate(wrt):
+            t = dr.zeros(T.Float, 1)
+            dr.enable_grad(t)
+            e = np.zeros(len(r.names))
+            e[int(i)] = 1.0
+            coords, _, _ = self._coords(r.optics(r.params(base) + t * T.Float(e)), k, qx, qy, aim)
+            flat = [v for cc in coords for v in cc]
+            dr.forward_from(t)
+            grads = [dr.grad(v) for v in flat]
+            dr.eval(grads)
+            dc = [np.nan_to_num(np.asarray(gv, dtype=np.float64)) for gv in grads]
+            for c in range(C):
+                term = sum(kk[:, 0] * dc[2 * j] + kk[:, 1] * dc[2 * j + 1] for j, kk in enumerate(coef[c]))
+                out[:, c, col] = np.bincount(pix, weights=term, minlength=r.n_pixels)
+        return out
 
     def objective(self, leaves, k: int, weights: np.ndarray):
         """``B(leaves) = Σ_t Σ_f k_t · c_f(q_t)``: its reverse-mode derivative is the boundary

@@ -65,14 +65,24 @@ TOTAL_REL_TOL = 0.05
 TOTAL_SIGMAS = 3.0
 
 
+#: Coordinates (a surface's global position, decenter or tilt) have no magnitude of their
+#: own: their value depends on where the frame's origin lies (the prism mirror of
+#: ini_freeform_optimized sits at z = 280.6 mm, tilted 100°), so their steps scale from
+#: the unit's floor alone.
+COORDINATE_KINDS = ("position_", "decenter_", "tilt_")
+
+
 def fd_step(name: str, value: float, unit: str, rel: float = REL_STEP) -> float:
-    """Central-difference step: ``rel · max(|value|, floor(unit))``.
+    """Central-difference step: ``rel · max(|value|, floor(unit))``, or ``rel · floor`` for
+    a coordinate (:data:`COORDINATE_KINDS`).
 
     Floors: 1 mm for lengths, 1° for angles, 0.01 mm⁻¹ (10 D) for powers and
     curvatures, 1 for indices and conics; aspheric coefficients (mm^(1−2i))
     use their own magnitude, or 1e-6 at zero.
     """
     floor = STEP_FLOOR.get(unit, 1e-6)
+    if name.rsplit(".", 1)[-1].startswith(COORDINATE_KINDS):
+        return float(rel * floor)
     return float(rel * max(abs(float(value)), floor))
 
 
