@@ -135,10 +135,17 @@ def main(argv=None) -> int:
     ap.add_argument("--perturbation", default="0.1,-0.1", help="relative error of the start (TL power, MLA position)")
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args(argv)
-    res = tuple(int(v) for v in a.resolution.split(","))
-    pert = tuple(float(v) for v in a.perturbation.split(","))
-    docs = [run(p.strip(), a.design, a.content, resolution=res, spp=a.spp, perturbation=pert, seed=a.seed,
-                target_seed=a.target_seed, log=None if a.json else print) for p in a.problem.split(",")]
+    problems = [p.strip() for p in a.problem.split(",") if p.strip()]
+    bad = [p for p in problems if p not in PROBLEMS]
+    if bad or not problems:
+        ap.error(f"--problem {a.problem!r}: expected {' or '.join(PROBLEMS)} (comma separated)")
+    try:
+        res = tuple(int(v) for v in a.resolution.split(","))
+        pert = tuple(float(v) for v in a.perturbation.split(","))
+    except ValueError as e:
+        ap.error(f"--resolution {a.resolution!r} / --perturbation {a.perturbation!r}: {e}")
+    docs = [run(p, a.design, a.content, resolution=res, spp=a.spp, perturbation=pert, seed=a.seed,
+                target_seed=a.target_seed, log=None if a.json else print) for p in problems]
     if a.json:
         print(json.dumps(docs, indent=2))
     return 0 if all(math.isfinite(d["runs"]["total"]["max_rel_err"]) for d in docs) else 1
