@@ -94,7 +94,10 @@ def cmd_gradcheck(args) -> int:
            or p.get("total_ok") is False]
     doc["tolerance"], doc["failed"] = args.tolerance, bad
     if args.json:
-        print(_dump(doc))
+        from ..analysis.compare import json_safe
+
+        # Relative errors and sigmas against a zero difference are infinite: null in JSON.
+        print(_dump(json_safe(doc)))
     else:
         print(f"{design_path} + {args.content}: {doc['path']} path, {res[0]}x{res[1]} px, {args.spp} spp, focus "
               f"{', '.join(f'{f:g}' for f in focus)} mm, loss {doc['loss']:.6g}")
