@@ -107,11 +107,12 @@ def run(problem: str = "natural", design_path=ROOT / "scenes/ini_ideal.toml",
     if log:
         what = ("truth" if problem == "recover"
                 else f"expected-loss minimum (Nelder-Mead over {reference_seeds} independent sample sets)")
-        log(f"{problem}: {', '.join(names)}; answer = {what} "
+        log(f"{problem}: {', '.join(names)} (design units: mm^-1, mm); answer = {what} "
             + ", ".join(f"{v:.6g}" for v in answer) + "; start " + ", ".join(f"{v:.6g}" for v in x0))
         for kind, run_ in out["runs"].items():
-            log(f"  {kind:8s} gradients: " + ", ".join(f"{n} {x:.6g} ({100 * e:+.3f} %)"
-                                                       for n, x, e in zip(names, run_["recovered"], run_["rel_err"]))
+            log(f"  with {kind:8s} gradients, recovered: "
+                + ", ".join(f"{n} {x:.6g} ({100 * e:+.3f} % from the answer)"
+                            for n, x, e in zip(names, run_["recovered"], run_["rel_err"]))
                 + f"; loss {run_['loss']:.6g} (answer {out['loss_at_answer']:.6g}); {run_['evaluations']} "
                   f"evaluations, {run_['seconds']:.1f} s")
     return out

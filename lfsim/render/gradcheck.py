@@ -659,9 +659,16 @@ def table(doc: dict) -> str:
                      f"{p['ad_kept']:12.5g} {p['fd_interior']:12.5g} {p['interior_rel_err']:9.2e} "
                      f"{p['fd_step']:9.2e} {p['boundary_term']:11.4g} {100 * p['bias']:7.1f}% "
                      f"{p['edge_samples']:6d}  {kind}"
-                     + (f"  total {p['ad_total']:.5g} vs {p['fd_total']:.5g} ± {p['fd_noise']:.2g} "
-                        f"({p['total_sigma']:.1f} σ{'' if p['total_ok'] else ', FAIL'})" if "ad_total" in p else ""))
+                     + (f"  total {p['ad_total']:.5g} (boundary {p['ad_boundary']:.4g}) vs {p['fd_total']:.5g} "
+                        f"± {p['fd_noise']:.2g} ({p['total_sigma']:.1f} σ{'' if p['total_ok'] else ', FAIL'}"
+                        f"{'; weak: noise >= |FD|' if p['fd_noise'] >= abs(p['fd_total']) else ''})"
+                        if "ad_total" in p else ""))
     lines.append("AD, FD, AD kept, FD interior, edge term: d(loss)/d(parameter) per unit of the parameter "
                  "(the loss, a sum over focus distances of mean squared image differences, has no unit); "
-                 "FD step in the parameter's unit")
+                 "FD step in the parameter's unit. FD and rel err: the plain difference at the capped step "
+                 "(a sample jumping there shows as a large error); the interior columns check AD along fixed "
+                 "samples; 'edge term' is the finite-difference estimate of the boundary part (a diagnosis)"
+                 + ("; 'total' is AD plus the boundary term against the full difference at the edge step, "
+                    "the pass/fail of the derivative" if doc.get("total") else
+                    "; no total derivative on this path (the analytic path with the ideal eye has one)"))
     return "\n".join(lines)
