@@ -109,12 +109,14 @@ def recover(renderer, targets, names, x0, total: bool = False, values=None, iter
 
 
 def minimize_loss(loss, names, x0, total: bool = False, values=None, max_iterations: int = 40,
-                  scale=None) -> dict:
+                  scale=None, ftol: float = 1e-12) -> dict:
     """Minimise a :class:`~lfsim.render.gradcheck.RenderLoss` over the entries ``names`` from
     ``x0`` by L-BFGS-B (scipy) with reverse-mode gradients: the total derivative
     (``total=True``, boundary term included) or the interior term alone. Variables are
-    scaled by ``scale`` (default ``|x0|``). Returns the solution, the loss, the number of
-    loss-and-gradient evaluations, scipy's message and the seconds."""
+    scaled by ``scale`` (default ``|x0|``); ``ftol``: scipy's stop on the loss's change
+    per iteration (relative to max(|L|, 1), so absolute for losses below 1). Returns the
+    solution, the loss, the number of loss-and-gradient evaluations, scipy's message and
+    the seconds."""
     from scipy.optimize import minimize
 
     from .gradcheck import gradient
@@ -136,7 +138,7 @@ def minimize_loss(loss, names, x0, total: bool = False, values=None, max_iterati
 
     t0 = time.perf_counter()
     res = minimize(f, x0 / s, jac=True, method="L-BFGS-B",
-                   options={"maxiter": int(max_iterations), "ftol": 1e-12, "gtol": 1e-12})
+                   options={"maxiter": int(max_iterations), "ftol": float(ftol), "gtol": 1e-12})
     return {"x": res.x * s, "loss": float(res.fun), "evaluations": int(res.nfev), "iterations": int(res.nit),
             "message": str(res.message), "path": path, "seconds": time.perf_counter() - t0}
 
