@@ -11,7 +11,8 @@ their render derivatives carry a large boundary term
 against the natural view).
 
 Solver: L-BFGS-B (scipy) on ``L = Σ_focus mean (I − T)²`` with reverse-mode
-gradients, run twice from the same start: with the **total** derivative
+gradients (stop: the loss changes by less than ``ftol`` = 1e-12 per iteration),
+run twice from the same start: with the **total** derivative
 (:mod:`lfsim.render.boundary`) and with the **interior** term alone. The
 iterates use one set of eye samples (common random numbers).
 
@@ -54,7 +55,7 @@ def run(problem: str = "natural", design_path=ROOT / "scenes/ini_ideal.toml",
         content_path=ROOT / "scenes/fig9_wall.toml", names=PARAMS, resolution=(96, 54), spp=16,
         focus_mm=(600.0, 1000.0, 1400.0), cdp_mm=750.0, pupil_mm=3.0, perturbation=(0.10, -0.10), seed=0,
         target_seed=1, reference_seeds=4, kinds=("total", "interior"), overrides=None, iterations=40,
-        log=None) -> dict:
+        ftol=1e-12, log=None) -> dict:
     """One problem (see the module docstring), solved with total and with interior gradients."""
     from lfsim.design.content import load_content
     from lfsim.design.overrides import load_with_overrides
@@ -97,7 +98,7 @@ def run(problem: str = "natural", design_path=ROOT / "scenes/ini_ideal.toml",
     if reference is not None:
         out["reference"] = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in reference.items()}
     for kind in kinds:
-        res = minimize_loss(loss, names, x0, total=kind == "total", max_iterations=iterations)
+        res = minimize_loss(loss, names, x0, total=kind == "total", max_iterations=iterations, ftol=ftol)
         err = (res["x"] - answer) / np.abs(answer)
         out["runs"][kind] = {"recovered": [float(v) for v in res["x"]], "rel_err": [float(e) for e in err],
                              "max_rel_err": float(np.max(np.abs(err))), "loss": res["loss"],

@@ -158,7 +158,8 @@ def test_inverse_design_with_total_gradients_on_edge_moving_parameters():
     assert nat["runs"]["total"]["max_rel_err"] < 0.01, nat["runs"]
     assert nat["runs"]["interior"]["max_rel_err"] > 0.01, nat["runs"]
     assert nat["runs"]["total"]["loss"] < nat["runs"]["interior"]["loss"]
-    rec = mod.run("recover", kinds=("total",))
+    # Looser stop for the recovery (measured: 0.17 % in 33 evaluations, against 80 at 1e-12).
+    rec = mod.run("recover", kinds=("total",), ftol=1e-9)
     assert rec["target_seed"] != rec["seed"]
     for start, truth in zip(rec["start"], rec["answer"]):
         assert abs(start / truth - 1.0) == pytest.approx(0.10)
