@@ -85,6 +85,16 @@ def test_per_pixel_boundary_jacobian_sums_to_the_reverse_term(setup):
     assert np.all(np.abs(acc - (gt - gi)[idx]) <= tol), (acc, (gt - gi)[idx])
 
 
+def test_total_gradient_of_every_design_number_is_finite(setup):
+    """No NaN leaves the boundary term: the total gradient over the whole design vector
+    (rays that miss, are vignetted or leave the display included) is finite."""
+    from lfsim.render import gradcheck as gc
+
+    r, _, _, loss = setup
+    _, g = gc.gradient(loss, None, None, total=True)
+    assert g.shape == (len(r.names),) and np.isfinite(g).all(), [n for n, v in zip(r.names, g) if not np.isfinite(v)]
+
+
 def test_boundary_term_needs_the_ideal_eye(setup):
     from lfsim.render.boundary import BoundaryTerm
     from lfsim.render.diff_render import AnalyticRenderer, ViewSpec
