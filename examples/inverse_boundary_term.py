@@ -90,11 +90,13 @@ def run(problem: str = "natural", design_path=ROOT / "scenes/ini_ideal.toml",
         reference = minimize_loss_reference(refs, names, r.values0[idx])
         answer = reference["x"]
     x0 = answer * (1.0 + np.asarray(perturbation, dtype=np.float64)[:len(names)])
+    at_answer = r.values0.copy()
+    at_answer[idx] = answer
     out = {"problem": problem, "design": str(design_path), "content": str(content_path),
            "resolution": list(resolution), "spp": int(spp), "focus_mm": list(focus_mm), "cdp_mm": cdp_mm,
            "seed": int(seed), "target_seed": int(target_seed), "names": list(names),
            "answer": [float(v) for v in answer], "start": [float(v) for v in x0],
-           "loss_at_answer": loss.value(_full(r, idx, answer)), "runs": {}}
+           "loss_at_answer": loss.value(at_answer), "runs": {}}
     if reference is not None:
         out["reference"] = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in reference.items()}
     for kind in kinds:
@@ -117,12 +119,6 @@ def run(problem: str = "natural", design_path=ROOT / "scenes/ini_ideal.toml",
                 + f"; loss {run_['loss']:.6g} (answer {out['loss_at_answer']:.6g}); {run_['evaluations']} "
                   f"evaluations, {run_['seconds']:.1f} s")
     return out
-
-
-def _full(r, idx, x):
-    v = r.values0.copy()
-    v[idx] = x
-    return v
 
 
 def main(argv=None) -> int:

@@ -8,11 +8,14 @@ its Jacobian comes from forward-mode Dr.Jit AD, one pass per parameter. With
 ``total=True`` the Jacobian is the total derivative of the expected image: the
 boundary term of the visibility edges (:mod:`lfsim.render.boundary`, per
 pixel) is added to the interior term. With ``total=False`` it is the interior
-term alone (AD along fixed samples), which is biased for every parameter that
-moves a lenslet-cell or aperture edge across the pupil.
+term alone (AD along fixed samples), which misses the boundary term of every
+parameter that moves a lenslet-cell or aperture edge across the pupil.
 
-:func:`recover` runs :func:`~lfsim.optimize.solvers.levenberg_marquardt` on it
-and returns the figures of a recovery.
+:func:`minimize_loss` minimises the scalar render loss instead, by L-BFGS-B
+with reverse-mode gradients (total or interior), and
+:func:`minimize_loss_reference` finds the same loss's minimum without
+derivatives (Nelder–Mead over independent sample sets), the answer gradient
+runs are compared against where no true design exists.
 """
 
 from __future__ import annotations
@@ -21,6 +24,21 @@ import time
 
 import drjit as dr
 import numpy as np
+
+
+def _scaled(r, names, x0, values, scale=None):
+    """(indices of ``names``, the full design vector the others are held at, the scale of
+    each variable: ``scale`` or ``|x0|``, 1 where that is 0)."""
+    idx = [r.index[n] for n in names]
+    base = r.values0.copy() if values is None else np.asarray(values, dtype=np.float64)
+    s = np.abs(np.asarray(x0, dtype=np.float64)) if scale is None else np.asarray(scale, dtype=np.float64)
+    return idx, base, np.where(s > 0, s, 1.0)
+
+
+def _at(base, idx, x):
+    v = base.copy()
+    v[idx] = x
+    return v
 
 
 class FocalStackProblem:
@@ -54,9 +72,7 @@ class FocalStackProblem:
         self.seconds = {"residuals": 0.0, "interior": 0.0, "boundary": 0.0}
 
     def values(self, x):
-        v = self.base.copy()
-        v[self.idx] = x
-        return v
+        return _at(self.base, self.idx, x)
 
     def residuals(self, x):
         t0 = time.perf_counter()
@@ -93,21 +109,6 @@ class FocalStackProblem:
         return res, J
 
 
-def recover(renderer, targets, names, x0, total: bool = False, values=None, iterations: int = 30,
-            progress: bool = False) -> dict:
-    """Levenberg–Marquardt from ``x0`` on :class:`FocalStackProblem`; returns the start,
-    the recovered values, the costs, the iterations, the status and the time split."""
-    from ..optimize.solvers import levenberg_marquardt
-
-    problem = FocalStackProblem(renderer, targets, names, values=values, total=total)
-    t0 = time.perf_counter()
-    res = levenberg_marquardt(problem, np.asarray(x0, dtype=np.float64), max_iterations=int(iterations),
-                              ftol=1e-14, xtol=1e-12, gtol=1e-14, progress=progress)
-    return {"x": res.x, "cost0": res.cost0, "cost": res.cost, "iterations": res.iterations,
-            "evaluations": res.evaluations, "status": res.status, "history": res.history,
-            "seconds": {"solve": time.perf_counter() - t0, **problem.seconds}}
-
-
 def minimize_loss(loss, names, x0, total: bool = False, values=None, max_iterations: int = 40,
                   scale=None, ftol: float = 1e-12) -> dict:
     """Minimise a :class:`~lfsim.render.gradcheck.RenderLoss` over the entries ``names`` from
@@ -121,18 +122,12 @@ def minimize_loss(loss, names, x0, total: bool = False, values=None, max_iterati
 
     from .gradcheck import gradient
 
-    r = loss.r
-    idx = [r.index[n] for n in names]
-    base = r.values0.copy() if values is None else np.asarray(values, dtype=np.float64)
     x0 = np.asarray(x0, dtype=np.float64)
-    s = np.abs(x0) if scale is None else np.asarray(scale, dtype=np.float64)
-    s = np.where(s > 0, s, 1.0)
+    idx, base, s = _scaled(loss.r, names, x0, values, scale)
     path = []
 
     def f(z):
-        v = base.copy()
-        v[idx] = z * s
-        L, g = gradient(loss, v, idx, total=total)
+        L, g = gradient(loss, _at(base, idx, z * s), idx, total=total)
         path.append([float(L), *(float(t) for t in z * s)])
         return L, g[idx] * s
 
@@ -155,15 +150,10 @@ def minimize_loss_reference(losses, names, x0, values=None, xatol: float = 1e-4)
     from scipy.optimize import minimize
 
     losses = list(losses) if isinstance(losses, (list, tuple)) else [losses]
-    r = losses[0].r
-    idx = [r.index[n] for n in names]
-    base = r.values0.copy() if values is None else np.asarray(values, dtype=np.float64)
-    s = np.abs(np.asarray(x0, dtype=np.float64))
-    s = np.where(s > 0, s, 1.0)
+    idx, base, s = _scaled(losses[0].r, names, x0, values)
 
     def f(z):
-        v = base.copy()
-        v[idx] = z * s
+        v = _at(base, idx, z * s)
         return float(np.mean([loss.value(v) for loss in losses]))
 
     t0 = time.perf_counter()
