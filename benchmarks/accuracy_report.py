@@ -375,7 +375,7 @@ def _reduced(path: Path, m: int, n: int):
 
 def measure_render(scenes: Path, quick: bool, log) -> list[Knob]:
     import lfsim
-    from lfsim.design.content import load_content
+    from lfsim.content import load_content
     from lfsim.render.accuracy import error_vs_time
     from lfsim.render.focal_stack import FocalStackSpec
 

@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import lfsim  # noqa: E402
-from lfsim.design.content import load_content  # noqa: E402
+from lfsim.content import load_content  # noqa: E402
 from lfsim.fileio import save_figure, write_json  # noqa: E402
 from lfsim.render.accuracy import error_vs_time  # noqa: E402
 

@@ -63,7 +63,7 @@ def child(design_name: str, resolution=(96, 54), spp: int = 16) -> dict:
     """Timings of one design in this process (see the module docstring)."""
     import drjit as dr
 
-    from lfsim.design.content import load_content
+    from lfsim.content import load_content
     from lfsim.design.design import load as load_design
     from lfsim.render import gradcheck as gc
     from lfsim.render.diff_render import AnalyticRenderer, ViewSpec

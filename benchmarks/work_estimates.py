@@ -40,7 +40,7 @@ print(json.dumps({"rc": rc, "maxrss_kb": resource.getrusage(resource.RUSAGE_SELF
 
 def estimate_for(res: str, spp: int, optics: str) -> dict:
     from lfsim import load
-    from lfsim.design.content import load_content
+    from lfsim.content import load_content
     from lfsim.ini.model import model_at_depth
     from lfsim.render.display import DisplayLayout
     from lfsim.render.focal_stack import FocalStackSpec, estimate

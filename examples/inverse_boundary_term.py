@@ -57,7 +57,7 @@ def run(problem: str = "natural", design_path=ROOT / "scenes/ini_ideal.toml",
         target_seed=1, reference_seeds=4, kinds=("total", "interior"), overrides=None, iterations=40,
         ftol=1e-12, log=None) -> dict:
     """One problem (see the module docstring), solved with total and with interior gradients."""
-    from lfsim.design.content import load_content
+    from lfsim.content import load_content
     from lfsim.design.overrides import load_with_overrides
     from lfsim.render.diff_render import AnalyticRenderer, ViewSpec
     from lfsim.render.gradcheck import RenderLoss, natural_targets

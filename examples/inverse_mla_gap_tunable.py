@@ -41,7 +41,7 @@ def run(design_path=ROOT / "scenes/ini_ideal.toml", content_path=ROOT / "scenes/
         perturbation=(0.10, -0.10), seed=0, target_seed=None, iterations=30, overrides=None,
         log=None) -> dict:
     """Render targets, perturb, recover; returns the figures (see the module docstring)."""
-    from lfsim.design.content import load_content
+    from lfsim.content import load_content
     from lfsim.design.overrides import load_with_overrides
     from lfsim.optimize.solvers import levenberg_marquardt
     from lfsim.render.diff_render import AnalyticRenderer, ViewSpec

@@ -332,6 +332,16 @@ def to_numpy(*values, dtype=None):
     return out[0] if len(out) == 1 else tuple(out)
 
 
+def mitsuba():
+    """The ``mitsuba`` module with lfsim's variant set (float32 RGB, differentiable)."""
+    import mitsuba as mi
+
+    variant = mitsuba_variant()
+    if mi.variant() != variant:
+        mi.set_variant(variant)
+    return mi
+
+
 def mitsuba_variant(spectral: bool = False) -> str:
     """Mitsuba variant matching the Dr.Jit back end (always differentiable)."""
     device = init()

@@ -11,7 +11,7 @@ SMALL = {"arrays.mla.m": 5, "arrays.mla.n": 3}  # ini_ideal with 5 x 3 lenslets
 
 @pytest.fixture(scope="module")
 def setup():
-    from lfsim.design.content import load_content
+    from lfsim.content import load_content
     from lfsim.design.overrides import load_with_overrides
     from lfsim.render import gradcheck as gc
     from lfsim.render.diff_render import AnalyticRenderer, ViewSpec

@@ -311,7 +311,7 @@ def test_every_verb_prints_its_help():
 
 def test_the_default_content_is_found_outside_the_checkout(tmp_path, monkeypatch):
     from lfsim.cli.common import DEFAULT_CONTENT, content_path
-    from lfsim.design.content import load_content
+    from lfsim.content import load_content
 
     monkeypatch.chdir(tmp_path)
     path = content_path(DEFAULT_CONTENT)

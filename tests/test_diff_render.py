@@ -18,7 +18,7 @@ SETS = [a for k, v in SMALL.items() for a in ("--set", f"{k}={v}")]
 
 @pytest.fixture(scope="module")
 def small():
-    from lfsim.design.content import load_content
+    from lfsim.content import load_content
     from lfsim.design.overrides import load_with_overrides
     from lfsim.render.diff_render import AnalyticRenderer, ViewSpec
 

@@ -8,7 +8,7 @@ import pytest
 import lfsim
 from lfsim.analysis.compare import compare_images
 from lfsim.cli import main
-from lfsim.design.content import load_content
+from lfsim.content import load_content
 from lfsim.render.focal_stack import read_exr
 
 
@@ -71,7 +71,7 @@ def test_mesh_path_focal_stack_matches_the_analytic_path(scenes, tmp_path):
     """--optics mesh (display + optics meshes + eye at the viewing window, path-traced
     by Mitsuba) and the analytic path differ by Monte Carlo noise only."""
     import lfsim
-    from lfsim.design.content import load_content
+    from lfsim.content import load_content
     from lfsim.render.accuracy import relative_rmse
     from lfsim.render.focal_stack import FocalStackSpec, focal_stack
 
@@ -99,7 +99,7 @@ def test_mesh_path_focal_stack_matches_the_analytic_path(scenes, tmp_path):
 def test_view_defaults_have_one_owner(scenes, tmp_path, capsys):
     """FocalStackSpec, ViewSpec and the render verbs take a [view] without keys from
     ContentView's defaults (the CDP at 750 mm, focus 600/1000/1400 mm, a 3 mm pupil)."""
-    from lfsim.design.content import VIEW_DEFAULTS, load_content
+    from lfsim.content import VIEW_DEFAULTS, load_content
     from lfsim.render.diff_render import ViewSpec
     from lfsim.render.focal_stack import FocalStackSpec
 
@@ -123,7 +123,7 @@ def test_python_api_writes_what_the_verb_writes_even_at_a_small_resolution(scene
     as `lfsim focal-stack` does; a 48x27 image (fewer columns than 24 bands of 3)
     gets fewer bands instead of failing."""
     import lfsim
-    from lfsim.design.content import load_content
+    from lfsim.content import load_content
     from lfsim.render.focal_stack import FocalStackSpec
     from lfsim.vision.focus_cues import focal_stack
 

@@ -572,7 +572,7 @@ CONTENT = (SCENES / "fig9_wall.toml").read_text()
 @examples(30)
 @given(data=st.data())
 def test_fuzz_content_loader(tmp_path, data):
-    from lfsim.design.content import load_content
+    from lfsim.content import load_content
 
     base = tomllib.loads(CONTENT)
     base["view"]["design"] = str(SCENES / "ini_ideal.toml")

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import lfsim
-from lfsim.design.content import content_from_dict
+from lfsim.content import content_from_dict
 
 
 @pytest.fixture(scope="module")

@@ -45,7 +45,7 @@ def geometry(coaxial):
 def mesh_setup(coaxial):
     from scipy.ndimage import gaussian_filter
 
-    from lfsim.design.content import load_content
+    from lfsim.content import load_content
     from lfsim.render import gradcheck as gc
     from lfsim.render.diff_render import AnalyticRenderer, ViewSpec
     from lfsim.render.mesh_ad import MeshRenderer

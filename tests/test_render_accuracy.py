@@ -4,13 +4,11 @@ import numpy as np
 import pytest
 
 import lfsim
-from lfsim.design.content import content_from_dict
+from lfsim.content import content_from_dict, elemental_images, scene_dict
 from lfsim.ini.model import model_at_depth
 from lfsim.render import mitsuba
 from lfsim.render.accuracy import paired_renders, relative_rmse
-from lfsim.render.content import scene_dict
 from lfsim.render.display import DisplayLayout
-from lfsim.render.elemental import elemental_images
 from lfsim.render.eye import EyeSpec
 
 EPS32 = 2.0**-24  # float32 unit roundoff (Mitsuba's mesh path traces in float32)

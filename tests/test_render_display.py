@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import lfsim
-from lfsim.design.content import content_from_dict, load_content
+from lfsim.content import content_from_dict, load_content
 from lfsim.design.errors import DesignError
 from lfsim.ini.model import IniModel, model_at_depth
 from lfsim.ini.subsystems import trace_rays
@@ -85,9 +85,8 @@ def test_content_file_and_errors(scenes, tmp_path):
 def test_elemental_images_show_the_content_seen_along_each_pixel_ray(scenes):
     """A luminous quad over the left half of visual space at 1 m lights exactly
     the display pixels whose visual-space ray meets it (both methods)."""
+    from lfsim.content import elemental_images, scene_dict, visual_rays
     from lfsim.render import mitsuba
-    from lfsim.render.content import scene_dict
-    from lfsim.render.elemental import elemental_images, visual_rays
 
     mi = mitsuba()
     model = IniModel(lfsim.load(scenes / "ini_ideal.toml"))
@@ -113,7 +112,7 @@ def test_image_texture_is_decoded_from_srgb_to_linear(tmp_path):
     """An 8-bit sRGB value 188 is linear 0.5029 (the sRGB transfer function, IEC 61966-2-1)."""
     from skimage import io
 
-    from lfsim.render.content import texture_image
+    from lfsim.content import texture_image
 
     io.imsave(tmp_path / "t.png", np.full((4, 6, 3), 188, dtype=np.uint8), check_contrast=False)
     c = content_from_dict({"objects": [{"corners": [[-1, -1, -100], [1, -1, -100], [-1, 1, -100]],

@@ -135,7 +135,7 @@ def test_lateral_colour_of_a_rendered_display_view_equals_the_traced_chief_rays(
 
 
 def test_content_primaries_are_parsed_and_bad_ones_refused(tmp_path):
-    from lfsim.design.content import load_content
+    from lfsim.content import load_content
     from lfsim.design.errors import DesignError
 
     base = ('[[objects]]\ncorners = [[-10, -10, -500], [10, -10, -500], [-10, 10, -500]]\n')

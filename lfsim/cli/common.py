@@ -86,7 +86,7 @@ def content_path(path: str) -> str:
 def _view_of(args, verb: str):
     """The content, design and eye view of a render verb: ``(content, design_path, design, focus_mm,
     cdp_mm, pupil_mm)``, from the arguments or else the content file's ``[view]``."""
-    from ..design.content import load_content
+    from ..content import load_content
 
     args.content = content_path(args.content)
     content = load_content(args.content)

@@ -83,7 +83,7 @@ def cmd_sweep(args) -> int:
     sched, workers, serial = _scheduler_args(args)
     content = spec = None
     if args.render:
-        from ..design.content import load_content
+        from ..content import load_content
         from ..render.focal_stack import FocalStackSpec
 
         content = load_content(content_path(args.content))

@@ -22,7 +22,7 @@ def _default_design(args):
     """DESIGN, or the default content's ``[view]`` design."""
     if args.design:
         return args.design
-    from ..design.content import load_content
+    from ..content import load_content
 
     d = load_content(content_path(DEFAULT_CONTENT)).view.design
     if d is None:

@@ -168,7 +168,7 @@ def load_design(path, opts: dict):
 
 def render(design, opts: dict, seeds, log=None) -> Rendered:
     """Render the focal stack once per seed (into a temporary folder); keep the retinal images."""
-    from ..design.content import load_content
+    from ..content import load_content
     from ..render.focal_stack import FocalStackSpec, focal_stack
 
     content = load_content(opts["content"])

@@ -11,14 +11,6 @@ z = −d.
 
 from __future__ import annotations
 
+from ..backend import mitsuba
 
-def mitsuba():
-    """The ``mitsuba`` module with lfsim's variant set (float32 RGB, differentiable)."""
-    import mitsuba as mi
-
-    from .. import backend
-
-    variant = backend.mitsuba_variant()
-    if mi.variant() != variant:
-        mi.set_variant(variant)
-    return mi
+__all__ = ["mitsuba"]

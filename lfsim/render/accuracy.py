@@ -133,12 +133,11 @@ def error_vs_time(design, content, cdp_mm: float = 750.0, resolution=(128, 74), 
     segments, lenslet_segments, prism_segments, rel_rmse, seconds}],
     "analytic_pair_seconds"}``.
     """
+    from ..content import elemental_images, scene_dict
     from ..ini.model import model_at_depth
     from . import display_eye
     from .analytic import ReverseOptics
-    from .content import scene_dict
     from .display import DisplayLayout
-    from .elemental import elemental_images
     from .eye import EyeSpec
     from .focal_stack import INTEGRATOR, render
     from .meshes import tessellation
@@ -182,12 +181,11 @@ def wavelength_error(design, content, cdp_mm: float = 750.0, resolution=(128, 74
     at another seed: the Monte Carlo error of one render at this spp. Returns ``{"samples":
     [{samples, rel_rmse, seconds}], "noise", "reference_seconds"}``.
     """
+    from ..content import elemental_images, scene_dict
     from ..ini.model import model_at_depth
     from . import display_eye
     from .analytic import ReverseOptics
-    from .content import scene_dict
     from .display import DisplayLayout
-    from .elemental import elemental_images
     from .eye import EyeSpec
     from .focal_stack import INTEGRATOR, load_scene, render_passes
     from .spectra import spectral
@@ -237,12 +235,11 @@ def sampler_noise(design, content, samplers=("independent", "multijitter", "lfsi
     Seconds: the first seed's render (its three passes, kernels compiled before). Returns ``{"rows": [{kind,
     diffraction, sampler, spp, rel_rmse, seconds}]}``.
     """
+    from ..content import elemental_images, scene_dict
     from ..ini.model import model_at_depth
     from . import display_eye
     from .analytic import ReverseOptics
-    from .content import scene_dict
     from .display import DisplayLayout
-    from .elemental import elemental_images
     from .eye import EyeSpec, sampler_type
     from .focal_stack import INTEGRATOR, load_scene, render_passes
     from .spectra import spectral

@@ -46,7 +46,7 @@ import numpy as np
 
 from .. import backend
 from ..backend import from_numpy
-from ..design.content import VIEW_DEFAULTS
+from ..content import VIEW_DEFAULTS
 from ..optics.reverse import reversed_system
 from ..optics.tracer import RayState, SequentialTracer
 
@@ -251,7 +251,7 @@ class AnalyticRenderer:
     design : lfsim.Design
         A design with an ``[ini]`` section.
     view : ViewSpec
-    content : lfsim.design.content.ContentScene, optional
+    content : lfsim.content.ContentScene, optional
         What the display shows: its elemental images are computed once, for
         the nominal design (``display`` may give them instead). The display
         content stays fixed while the design vector changes: a derivative is
@@ -302,9 +302,8 @@ class AnalyticRenderer:
 
     # ------------------------------------------------------------ set-up
     def _elemental_images(self, content):
+        from ..content import elemental_images, scene_dict
         from . import mitsuba
-        from .content import scene_dict
-        from .elemental import elemental_images
 
         mi = mitsuba()
         scene = mi.load_dict(scene_dict(content))

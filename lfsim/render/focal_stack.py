@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..design.content import VIEW_DEFAULTS
+from ..content import VIEW_DEFAULTS
 from . import mitsuba
 
 #: Every scene a retinal camera sees here is emitters only (the display, the content's
@@ -211,14 +211,13 @@ def focal_stack(design, content, out_dir, spec: FocalStackSpec | None = None, pr
 
 def _focal_stack(design, content, out_dir, spec, progress, log, limits=None, analyses=()):
     from .. import budget
+    from ..content import elemental_images, scene_dict
     from ..fileio import write_json
     from ..ini.model import model_at_depth
     from .analytic import ReverseOptics
-    from .content import scene_dict
     from .display import DisplayLayout
     from .display_eye import attach, release
     from .display_eye import sensor_dict as display_sensor
-    from .elemental import elemental_images
     from .eye import EyeSpec
     from .spectra import describe, natural_primaries, primaries_doc
 

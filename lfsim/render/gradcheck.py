@@ -88,7 +88,7 @@ def fd_step(name: str, value: float, unit: str, rel: float = REL_STEP) -> float:
 
 def natural_targets(renderer, content, spp: int | None = None, seed: int = 1) -> list[np.ndarray]:
     """The natural view of ``content`` through the renderer's eye, per focus (H, W, C)."""
-    from .content import scene_dict
+    from ..content import scene_dict
     from .eye import EyeSpec
     from .focal_stack import INTEGRATOR, render
 

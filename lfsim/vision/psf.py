@@ -3,7 +3,7 @@
 * **natural**: the real point (a self-luminous square of :data:`POINT_ARCMIN` per side, far
   below the eye's diffraction blur) at the depth, seen by the eye focused at the focus distance.
 * **display**: the point as the InI display shows it at the CDP state: in every elemental
-  image, the one pixel whose real chief ray (:func:`lfsim.render.elemental.visual_rays`, the
+  image, the one pixel whose real chief ray (:func:`lfsim.content.visual_rays`, the
   elemental images' own rays) passes nearest the point, lit if that miss is within the
   pixel's own angular size (a lenslet whose view does not hold the point shows nothing);
   then the display seen through the design by the same eye.
@@ -157,7 +157,7 @@ def profile_stats(lum: np.ndarray, px_arcmin: float, total: float | None = None)
 def point_display(model, layout, depth_d: float) -> tuple[np.ndarray, int]:
     """The display image (H, W, 3) of a point on the line of sight at ``depth_d``, and the
     number of elemental images that show it."""
-    from ..render.elemental import visual_rays
+    from ..content import visual_rays
 
     centres = layout.pixel_centers().reshape(-1, 2)
     o, d, ok = visual_rays(model, layout, centres, "real", 0)
@@ -193,11 +193,10 @@ class PsfRenderer:
     Arizona eye's accommodation is solved for the focus distance (the ideal eye has none)."""
 
     def __init__(self, design, spec: PsfSpec, log=print, reference_nm: float = 550.0):
-        from ..design.content import content_from_dict
+        from ..content import content_from_dict, scene_dict
         from ..ini.model import model_at_depth
         from ..render import mitsuba
         from ..render.analytic import ReverseOptics
-        from ..render.content import scene_dict
         from ..render.display import DisplayLayout
         from ..render.display_eye import attach
         from ..render.focal_stack import INTEGRATOR, load_scene

@@ -21,8 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .content import shade
-from .display import DisplayLayout
+from .quads import shade
 
 METHODS = ("real", "pinhole")
 
@@ -34,7 +33,7 @@ def _subpixel_offsets(samples: int) -> np.ndarray:
     return np.stack([X.ravel(), Y.ravel()], axis=1)
 
 
-def visual_rays(model, layout: DisplayLayout, xy: np.ndarray, method: str = "real", k: int = 0):
+def visual_rays(model, layout, xy: np.ndarray, method: str = "real", k: int = 0):
     """Visual-space rays of display points ``xy`` (N, 2): origins (N, 3), directions (N, 3), valid (N,)."""
     from ..ini.subsystems import trace_rays
 
@@ -55,7 +54,7 @@ def visual_rays(model, layout: DisplayLayout, xy: np.ndarray, method: str = "rea
     return origins, -d, valid
 
 
-def elemental_images(model, content_scene, layout: DisplayLayout | None = None, method: str = "real",
+def elemental_images(model, content_scene, layout=None, method: str = "real",
                      samples: int = 1, k: int = 0, background=(0.0, 0.0, 0.0), chunk: int = 1 << 20,
                      progress=None) -> np.ndarray:
     """The display image (H, W, 3, float32, linear) for a Mitsuba content scene.
@@ -63,7 +62,10 @@ def elemental_images(model, content_scene, layout: DisplayLayout | None = None, 
     ``samples``: a samples×samples stratified grid inside every pixel (box
     filter); ``progress``: called with the number of pixels done per chunk.
     """
-    layout = layout or DisplayLayout.from_model(model, k)
+    if layout is None:
+        from ..render.display import DisplayLayout
+
+        layout = DisplayLayout.from_model(model, k)
     centres = layout.pixel_centers().reshape(-1, 2)
     offs = _subpixel_offsets(int(samples)) * layout.pixel_pitch * np.array([1.0, -1.0])
     img = np.zeros((len(centres), 3), dtype=np.float64)

@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import DesignError
+from ..design.errors import DesignError
 
 TEXTURES = ("constant", "noise", "checker", "bars", "image")
 

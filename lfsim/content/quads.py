@@ -1,6 +1,6 @@
 """Content scenes in Mitsuba: textured self-luminous quads in visual space.
 
-The loaded :class:`~lfsim.design.content.ContentScene` becomes a Mitsuba scene
+The loaded :class:`~lfsim.content.ContentScene` becomes a Mitsuba scene
 in the viewing-window frame. It is shaded in two ways: by the elemental-image
 generator (one ray per display pixel, :func:`shade`) and by the eye sensor for
 the natural view (the ground truth a display render is compared with).
@@ -10,9 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..backend import from_numpy
-from ..design.content import ContentScene, Quad
-from . import mitsuba
+from ..backend import from_numpy, mitsuba
+from .schema import ContentScene, Quad
 
 
 def texture_image(q: Quad) -> np.ndarray:
