@@ -27,11 +27,13 @@ def cmd_focal_stack(args) -> int:
         raise InputError(f"--wavelength-nm = {args.wavelength_nm!r}: must lie in 380..780 nm")
     if args.wavelength_samples < 1:
         raise InputError(f"--wavelength-samples = {args.wavelength_samples}: must be >= 1")
+    if args.ei_spp < 1:
+        raise InputError(f"--ei-spp = {args.ei_spp}: must be >= 1")
     spec = FocalStackSpec(focus_mm=[float(f) for f in focus], cdp_mm=cdp, pupil_diameter_mm=float(pupil),
                           spp=args.spp, resolution=res, seed=args.seed, eye_model=args.eye,
                           mla_cells=args.mla_cells, optics=args.optics, tessellation=args.tessellation,
                           wavelength_nm=args.wavelength_nm, wavelength_samples=args.wavelength_samples,
-                          diffraction=not args.no_diffraction)
+                          diffraction=not args.no_diffraction, ei_spp=args.ei_spp, ei_bundle=args.ei_bundle)
     quiet = args.json  # progress: a bar on a terminal, periodic lines in a log
     log = (lambda *a, **k: None) if args.json else (lambda msg: print(msg, file=sys.stderr))
     doc, _ = focal_stack(design, content, args.out, spec, progress=not quiet, log=log)
@@ -189,7 +191,14 @@ def register(sub) -> None:
     fs = sub.add_parser("focal-stack", help="retinal images of the display focused at several depths, "
                         "with the natural view, similarity and focus cues")
     fs.add_argument("design", nargs="?", help="InI design (default: the content file's [view] design)")
-    fs.add_argument("--content", default=DEFAULT_CONTENT, help=f"content scene (default {DEFAULT_CONTENT})")
+    fs.add_argument("--content", default=DEFAULT_CONTENT, help=f"content: a content TOML or a Mitsuba XML scene in "
+                    f"visual-space mm (default {DEFAULT_CONTENT})")
+    fs.add_argument("--ei-spp", type=int, default=16,
+                    help="samples per display pixel of path-traced elemental images (a Mitsuba-scene content) "
+                    "and of --ei-bundle (default 16)")
+    fs.add_argument("--ei-bundle", action="store_true",
+                    help="anti-aliased elemental images: each pixel integrates over its ray bundle (pixel "
+                    "area x lenslet stop, --ei-spp rays) instead of shading its chief ray")
     fs.add_argument("--focus-mm", help="eye focus distances, mm, comma separated (default: the content's)")
     fs.add_argument("--cdp-mm", help="CDP distance the tunable lens is set to, mm (inf allowed)")
     fs.add_argument("--pupil-mm", type=float, help="eye pupil diameter, mm (default: the content's, else 3)")

@@ -20,10 +20,33 @@ optics by lfsim's tracer.
 
 from __future__ import annotations
 
-from .elemental import METHODS, elemental_images, visual_rays
+from .elemental import METHODS, ElementalImages, display_work, elemental_images, shade_display, visual_rays
 from .quads import quad_transform, scene_dict, shade, texture_image
 from .schema import VIEW_DEFAULTS, ContentScene, ContentView, Quad, Texture, content_from_dict, load_content
 
-__all__ = ["METHODS", "VIEW_DEFAULTS", "ContentScene", "ContentView", "Quad", "Texture", "content_from_dict",
-           "elemental_images", "load_content", "quad_transform", "scene_dict", "shade", "texture_image",
-           "visual_rays"]
+__all__ = ["METHODS", "VIEW_DEFAULTS", "ContentScene", "ContentView", "ElementalImages", "Quad", "Texture",
+           "content_from_dict", "display_work", "elemental_images", "from_mitsuba", "load_content", "quad_transform",
+           "scene_dict", "shade", "shade_display", "texture_image", "visual_rays"]
+
+
+def from_mitsuba(scene, name: str = "scene", view: ContentView | None = None, units="mm",
+                 rotate_deg=(0.0, 0.0, 0.0), translate_mm=(0.0, 0.0, 0.0), max_depth: int | None = None,
+                 primaries: dict | None = None) -> ContentScene:
+    """Content from a Mitsuba scene: a loaded ``mi.Scene``, a scene dict, or an XML path.
+
+    ``units`` (a name of :data:`lfsim.content.mitsuba_scene.UNITS` or mm per unit),
+    ``rotate_deg`` (about x, then y, then z) and ``translate_mm`` place the scene in
+    visual space; the defaults take it as given, in visual-space millimetres.
+    """
+    import numpy as np
+
+    from .mitsuba_scene import MAX_DEPTH, SceneSource, _rotation, units_mm
+
+    label = str(scene) if isinstance(scene, str) else f"<{name}>"
+    src = SceneSource(file=scene if isinstance(scene, str) else None,
+                      scene=None if isinstance(scene, str) else scene, scale=units_mm(label, "units", units),
+                      rotation=_rotation(rotate_deg), translation=np.asarray(translate_mm, dtype=np.float64),
+                      max_depth=MAX_DEPTH if max_depth is None else int(max_depth), label=label)
+    content = ContentScene(label, name, [], view=view or VIEW_DEFAULTS, primaries=primaries, scene=src)
+    content.mitsuba_scene()
+    return content

@@ -19,6 +19,9 @@ is the pixel's value.
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
+
 import numpy as np
 
 from .quads import shade
@@ -33,19 +36,24 @@ def _subpixel_offsets(samples: int) -> np.ndarray:
     return np.stack([X.ravel(), Y.ravel()], axis=1)
 
 
-def visual_rays(model, layout, xy: np.ndarray, method: str = "real", k: int = 0):
-    """Visual-space rays of display points ``xy`` (N, 2): origins (N, 3), directions (N, 3), valid (N,)."""
+def visual_rays(model, layout, xy: np.ndarray, method: str = "real", k: int = 0, rho: np.ndarray | None = None):
+    """Visual-space rays of display points ``xy`` (N, 2): origins (N, 3), directions (N, 3), valid (N,).
+
+    ``rho`` (N, 2): the rays' points on their lenslet's stop, in stop half-widths
+    (:func:`lfsim.ini.subsystems.trace_rays`); None: the stop centre (chief rays).
+    """
     from ..ini.subsystems import trace_rays
 
     if method not in METHODS:
         raise ValueError(f"method = {method!r}: expected one of {', '.join(METHODS)}")
     m, n = layout.lenslet_of(xy)
+    rho = np.zeros(2) if rho is None else np.asarray(rho, dtype=np.float64)
     if method == "real":
-        pos, d, _, status, _ = trace_rays(model, xy, m, n, np.zeros(2), k, iterations=8)
+        pos, d, _, status, _ = trace_rays(model, xy, m, n, rho, k, iterations=8)
         valid = status == 0
     else:
         c = model.lenslet_center(m, n)
-        st = model.paraxial_vw(k, xy, c, np.zeros_like(xy))
+        st = model.paraxial_vw(k, xy, c, np.broadcast_to(rho, np.shape(xy)))
         pos = st[:, 0:2]
         d = np.column_stack([st[:, 2], st[:, 3], np.ones(len(st))])
         d /= np.linalg.norm(d, axis=1, keepdims=True)
@@ -79,3 +87,99 @@ def elemental_images(model, content_scene, layout=None, method: str = "real",
         if progress is not None:
             progress(len(c))
     return img.reshape(layout.height, layout.width, 3).astype(np.float32)
+
+
+@dataclass
+class ElementalImages:
+    """The display image of a content and what came with it."""
+
+    image: np.ndarray  # (H, W, 3) float32, linear
+    #: Distance (mm) along each pixel's chief ray from the viewing window to the first
+    #: content surface; inf: it meets nothing; 0: the pixel sends no ray to the window.
+    depth: np.ndarray
+    normal: np.ndarray  # (H, W, 3) unit visual-space normal of that surface, 0 without one
+    method: str
+    bundle: bool
+    path_traced: bool
+    spp: int  # samples per pixel (1 for the quads' chief rays)
+    noise_rel: float | None  # standard error, RMS over pixels, relative to the mean (None: exact)
+    seconds: float
+
+    def doc(self) -> dict:
+        return {"method": self.method, "bundle": self.bundle, "path_traced": self.path_traced, "spp": self.spp,
+                "noise_rel": self.noise_rel, "render_s": round(self.seconds, 3)}
+
+
+def _stop_samples(model, rng, n: int) -> np.ndarray:
+    """Uniform points (n, 2) on the lenslet stop, in stop half-widths (a circle of radius r
+    is r/√2 per half-width, :attr:`lfsim.ini.model.IniModel.stop_half`)."""
+    ap = model.system.surfaces[model.spec.stop].aperture
+    u = rng.random((n, 2))
+    if ap is not None and ap.kind != "rectangular":
+        r, phi = np.sqrt(u[:, 0]) * math.sqrt(2.0), 2.0 * math.pi * u[:, 1]
+        return np.column_stack([r * np.cos(phi), r * np.sin(phi)])
+    return 2.0 * u - 1.0
+
+
+def display_work(layout, content, spp: int, bundle: bool, samples: int = 1) -> int:
+    """Pixel-samples :func:`shade_display` reports to ``progress`` in all."""
+    n = layout.width * layout.height
+    return n * (int(spp) if (content.path_traced or bundle) else 1)
+
+
+def shade_display(model, content, layout, method: str = "real", samples: int = 1, spp: int = 16,
+                  bundle: bool = False, seed: int = 0, k: int = 0, progress=None) -> ElementalImages:
+    """The elemental images of a :class:`~lfsim.content.ContentScene` on ``layout``'s display.
+
+    * Self-luminous content (quads, RGB-D): the emission along each pixel's
+      chief ray (``samples``² stratified points inside the pixel), exact.
+    * A Mitsuba scene: path-traced by Mitsuba along the same rays
+      (:mod:`.pathtrace`), ``spp`` samples per pixel, with the noise reported.
+    * ``bundle``: either kind integrated over the pixel's ray bundle instead —
+      ``spp`` rays per pixel, each from a uniform point of the pixel's area
+      through a uniform point of its lenslet's stop, traced through the real
+      optics (rays vignetted on the way do not count).
+
+    ``progress(n)``: called with the pixel-samples done (:func:`display_work` in all).
+    """
+    import time
+
+    from . import pathtrace
+
+    t0 = time.perf_counter()
+    W, H = layout.width, layout.height
+    centres = layout.pixel_centers().reshape(-1, 2)
+    o0, d0, ok0 = visual_rays(model, layout, centres, method, k)
+    src = content.scene
+    scene = content.mitsuba_scene()
+
+    def to_scene(o, d):
+        return (o, d) if src is None else src.rays_to_scene(o, d)
+
+    def rays_for_pass(p):
+        if p == 0 and not bundle:
+            o, d, ok = o0, d0, ok0
+        else:
+            rng = np.random.default_rng([int(seed), int(p), 0x1F5B])
+            jitter = (rng.random((len(centres), 2)) - 0.5) * layout.pixel_pitch
+            o, d, ok = visual_rays(model, layout, centres + jitter, method, k,
+                                   rho=_stop_samples(model, rng, len(centres)))
+        return (*to_scene(o, d), ok)
+
+    if content.path_traced or bundle:
+        if content.path_traced:
+            depth_max = src.max_depth
+        else:
+            depth_max = 1  # emission of the first hit
+        sh = pathtrace.render_rays(scene, rays_for_pass, W, H, spp, depth_max, seed=seed, fresh_rays=bundle,
+                                   progress=progress)
+        img, n_spp, noise = sh.image, sh.spp, sh.noise_rel
+    else:
+        img = elemental_images(model, scene, layout, method, samples, k, content.background,
+                               progress=progress)
+        n_spp, noise = int(samples) ** 2, None
+    so, sd = to_scene(o0, d0)
+    depth, normal = pathtrace.surface_aovs(scene, so, sd, ok0, 1.0 if src is None else src.scale,
+                                           None if src is None else src.normals_to_visual)
+    return ElementalImages(img, depth.reshape(H, W).astype(np.float32), normal.reshape(H, W, 3).astype(np.float32),
+                           method, bool(bundle), content.path_traced, n_spp, noise, time.perf_counter() - t0)

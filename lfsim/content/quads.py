@@ -1,4 +1,4 @@
-"""Content scenes in Mitsuba: textured self-luminous quads in visual space.
+"""Self-luminous content in Mitsuba: textured quads (and RGB-D height fields) in visual space.
 
 The loaded :class:`~lfsim.content.ContentScene` becomes a Mitsuba scene
 in the viewing-window frame. It is shaded in two ways: by the elemental-image
@@ -64,7 +64,12 @@ def scene_dict(content: ContentScene) -> dict:
     """Mitsuba scene dict of the content (no sensor, no integrator)."""
     mi = mitsuba()
     d = {"type": "scene"}
+    if content.scene is not None:
+        raise ValueError(f"{content.path}: a Mitsuba-scene content has no quad scene dict (ContentScene.mitsuba_scene)")
     for i, q in enumerate(content.objects):
+        if not isinstance(q, Quad):  # an RGB-D height field (lfsim.content.rgbd)
+            d[f"content_{i}_{q.name}"] = q.mesh()
+            continue
         img = texture_image(q) * np.asarray(q.radiance, dtype=np.float32)
         d[f"content_{i}_{q.name}"] = {
             "type": "rectangle",

@@ -88,14 +88,42 @@ VIEW_DEFAULTS = ContentView()
 
 @dataclass
 class ContentScene:
+    """A loaded content file: quads and RGB-D objects (self-luminous, exact), or a Mitsuba scene
+    (``scene``, path-traced)."""
+
     path: str
     name: str
-    objects: list[Quad]
+    objects: list  # Quad and RgbdObject (lfsim.content.rgbd); empty for a Mitsuba scene
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     view: ContentView = VIEW_DEFAULTS
     #: Display primaries of spectral renders ({"R", "G", "B"}: lfsim.render.spectra.Primary);
     #: None: the default OLED microdisplay's.
     primaries: dict | None = None
+    #: A Mitsuba scene (lfsim.content.mitsuba_scene.SceneSource); None: the objects above.
+    scene: object = None
+
+    @property
+    def path_traced(self) -> bool:
+        """True for a Mitsuba scene (lit surfaces: path-traced, with noise); False for
+        self-luminous objects (the emitted radiance of the first hit: exact)."""
+        return self.scene is not None
+
+    def mitsuba_scene(self):
+        """The content as a loaded ``mi.Scene`` (once per ContentScene), in its own frame
+        (:attr:`to_scene` maps visual space into it)."""
+        if self.scene is not None:
+            return self.scene.load()
+        if getattr(self, "_mi_scene", None) is None:
+            from ..backend import mitsuba
+            from .quads import scene_dict
+
+            self._mi_scene = mitsuba().load_dict(scene_dict(self))
+        return self._mi_scene
+
+    @property
+    def to_scene(self) -> np.ndarray:
+        """Visual space → the Mitsuba scene's frame (4×4; identity for objects)."""
+        return np.eye(4) if self.scene is None else self.scene.to_scene
 
 
 def _primaries(file, data) -> dict | None:
@@ -195,11 +223,19 @@ def _texture(file, key, t, base: Path) -> Texture:
 
 
 def load_content(path: str | Path) -> ContentScene:
-    """Load and validate a content scene file (errors name file, key and value)."""
+    """Load and validate a content file (errors name file, key and value): a content TOML
+    (objects, or a ``[scene]``), or a Mitsuba XML scene in visual-space millimetres."""
     path = Path(path)
     file = str(path)
     if not path.is_file():
         raise DesignError(file, "", None, "content file not found")
+    if path.suffix.lower() == ".xml":
+        from .mitsuba_scene import SceneSource
+
+        src = SceneSource(file=str(path.resolve()), label=file)
+        content = ContentScene(file, path.stem, [], scene=src)
+        content.mitsuba_scene()  # load and check now: a bad scene fails before any work
+        return content
     try:
         data = tomllib.loads(path.read_text())
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
@@ -208,16 +244,35 @@ def load_content(path: str | Path) -> ContentScene:
 
 
 def content_from_dict(data: dict, file: str = "<dict>", base: Path = Path(".")) -> ContentScene:
+    unknown = set(data) - {"name", "description", "view", "display", "objects", "scene"}
+    if unknown:
+        k = sorted(unknown)[0]
+        raise DesignError(file, k, data[k], "unknown key (expected name, description, view, display, objects "
+                          "or scene)")
     objs = data.get("objects")
-    if not isinstance(objs, list) or not objs:
-        raise DesignError(file, "objects", objs, "expected at least one [[objects]] table")
+    src = None
+    if "scene" in data:
+        from .mitsuba_scene import parse_scene_section
+
+        if objs is not None:
+            raise DesignError(file, "objects", objs, "a content file holds a [scene] or [[objects]], not both "
+                              "(add the objects to the Mitsuba scene)")
+        src = parse_scene_section(file, data["scene"], base)
+        objs = []
+    elif not isinstance(objs, list) or not objs:
+        raise DesignError(file, "objects", objs, "expected at least one [[objects]] table, or a [scene]")
     out = []
     for i, o in enumerate(objs):
         key = f"objects[{i}]"
         if not isinstance(o, dict):
             raise DesignError(file, key, o, "expected a table")
+        if o.get("type", "quad") == "rgbd":
+            from .rgbd import parse_rgbd
+
+            out.append(parse_rgbd(file, key, o, base, i))
+            continue
         if o.get("type", "quad") != "quad":
-            raise DesignError(file, f"{key}.type", o.get("type"), "expected \"quad\"")
+            raise DesignError(file, f"{key}.type", o.get("type"), "expected \"quad\" or \"rgbd\"")
         c = o.get("corners")
         if not (isinstance(c, list) and len(c) == 3 and all(isinstance(r, list) and len(r) == 3 for r in c)):
             raise DesignError(file, f"{key}.corners", c, "expected three [x, y, z] points (mm)")
@@ -257,5 +312,11 @@ def content_from_dict(data: dict, file: str = "<dict>", base: Path = Path(".")) 
     if "pupil_diameter" in view:
         v["pupil_diameter_mm"] = _num(file, "view.pupil_diameter", view["pupil_diameter"], positive=True)
     bg = _rgb(file, "view.background", view.get("background", 0.0))
-    return ContentScene(file, str(data.get("name", Path(file).stem)), out, bg, ContentView(**v),
-                        _primaries(file, data))
+    if src is not None and "background" in view:
+        raise DesignError(file, "view.background", view["background"], "a Mitsuba scene has its own "
+                          "environment: give it a constant or envmap emitter instead")
+    content = ContentScene(file, str(data.get("name", Path(file).stem)), out, bg, ContentView(**v),
+                           _primaries(file, data), scene=src)
+    if src is not None:
+        content.mitsuba_scene()  # load and check now: a bad scene fails before any work
+    return content

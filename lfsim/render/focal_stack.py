@@ -30,6 +30,16 @@ import numpy as np
 from ..content import VIEW_DEFAULTS
 from . import mitsuba
 
+
+def natural_integrator(content) -> dict | None:
+    """The integrator of a content's natural view: None (the scene dict's own, emission of the
+    first hit) for self-luminous content; Mitsuba's path tracer for a Mitsuba scene."""
+    if not content.path_traced:
+        return None
+    from ..content.pathtrace import integrator
+
+    return integrator(content.scene.max_depth)
+
 #: Every scene a retinal camera sees here is emitters only (the display, the content's
 #: emissive quads, a constant background): depth 1 is the emitted radiance of the first hit,
 #: with no emitter or BSDF sampling after it (the same image as depth 2, 1.3-1.4x faster).
@@ -52,6 +62,11 @@ class FocalStackSpec:
     eye_model: str = "ideal"
     ei_method: str = "real"
     ei_samples: int = 1
+    # Elemental images of a path-traced (Mitsuba-scene) content, or of any content with
+    # ei_bundle: samples per display pixel; ei_bundle integrates over each pixel's ray bundle
+    # (pixel area × lenslet stop) instead of shading its chief ray.
+    ei_spp: int = 16
+    ei_bundle: bool = False
     natural: bool = True
     mla_cells: str = "per_surface"  # "fixed": baffled lenslet cells (an ideal aperture array)
     optics: str = "analytic"  # "mesh": Mitsuba meshes of the optics, path-traced
@@ -83,8 +98,9 @@ def _srgb8(img: np.ndarray) -> np.ndarray:
     return np.array(bmp.convert(mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.UInt8, srgb_gamma=True))
 
 
-def write_exr(path: Path, img: np.ndarray, meta: dict) -> None:
-    """A float32 RGB EXR (ZIP) with string/float metadata, written atomically."""
+def write_exr(path: Path, img: np.ndarray, meta: dict, extra: dict | None = None) -> None:
+    """A float32 RGB EXR (ZIP) with string/float metadata, written atomically; ``extra``:
+    more channels by name (``{"depth.Z": (H, W), "normal": (H, W, 3)}``, AOVs)."""
     import OpenEXR
 
     from ..fileio import atomic_path
@@ -93,7 +109,10 @@ def write_exr(path: Path, img: np.ndarray, meta: dict) -> None:
     for k, v in meta.items():
         header[f"lfsim_{k}"] = float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else str(v)
     with atomic_path(path) as tmp:
-        with OpenEXR.File(header, {"RGB": np.ascontiguousarray(img, dtype=np.float32)}) as f:
+        channels = {"RGB": np.ascontiguousarray(img, dtype=np.float32)}
+        for k, v in (extra or {}).items():
+            channels[k] = np.ascontiguousarray(v, dtype=np.float32)
+        with OpenEXR.File(header, channels) as f:
             f.write(str(tmp))
 
 
@@ -127,7 +146,7 @@ def load_scene(scene_dict: dict):
     return mitsuba().load_dict(scene_dict)
 
 
-def render(scene_dict, sensor: dict | None = None) -> tuple[np.ndarray, float]:
+def render(scene_dict, sensor: dict | None = None, integrator: dict | None = None) -> tuple[np.ndarray, float]:
     """Render a Mitsuba scene (a dict, or a loaded ``mi.Scene``); (image (H, W, 3) float32, seconds).
 
     ``sensor``: a sensor dict rendered instead of the scene's own, so one
@@ -138,6 +157,8 @@ def render(scene_dict, sensor: dict | None = None) -> tuple[np.ndarray, float]:
     t0 = time.perf_counter()
     scene = mi.load_dict(scene_dict) if isinstance(scene_dict, dict) else scene_dict
     kw = {} if sensor is None else {"sensor": mi.load_dict(sensor)}
+    if integrator is not None:
+        kw["integrator"] = mi.load_dict(integrator)
     img = np.array(mi.render(scene, **kw), dtype=np.float32)[..., :3]
     return img, time.perf_counter() - t0
 
@@ -148,8 +169,8 @@ def render_passes(jobs, passes) -> tuple[np.ndarray, float]:
     if len(jobs) == 1 and passes[0].channel is None:
         return render(*jobs[0])
     img, total = None, 0.0
-    for (scene, sensor), w in zip(jobs, passes):
-        part, secs = render(scene, sensor)
+    for (scene, sensor, *integ), w in zip(jobs, passes):
+        part, secs = render(scene, sensor, *integ)
         total += secs
         img = np.zeros_like(part) if img is None else img
         img[..., w.channel] = part[..., w.channel]
@@ -211,7 +232,7 @@ def focal_stack(design, content, out_dir, spec: FocalStackSpec | None = None, pr
 
 def _focal_stack(design, content, out_dir, spec, progress, log, limits=None, analyses=()):
     from .. import budget
-    from ..content import elemental_images, scene_dict
+    from ..content import display_work, scene_dict, shade_display
     from ..fileio import write_json
     from ..ini.model import model_at_depth
     from .analytic import ReverseOptics
@@ -222,7 +243,7 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None, ana
     from .spectra import describe, natural_primaries, primaries_doc
 
     spec = spec or FocalStackSpec()
-    mi = mitsuba()
+    mitsuba()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t_all = time.perf_counter()
@@ -234,18 +255,18 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None, ana
     W, H = spec.resolution or (512, max(1, int(round(512 * fy / fx))))
     budget.check(estimate(spec, (W, H), layout.width * layout.height), limits, log,
                  hint="lower --resolution or --spp")
-    content_scene = mi.load_dict(scene_dict(content))
+    content_scene = content.mitsuba_scene()
 
     bar = None
     if progress:
         from ..progress import bar as tqdm
 
-        bar = tqdm(total=layout.width * layout.height, desc="elemental images", unit="px",
-                   unit_scale=True, leave=False)
-    t0 = time.perf_counter()
-    display = elemental_images(model, content_scene, layout, method=spec.ei_method, samples=spec.ei_samples,
-                               background=content.background, progress=bar.update if bar else None)
-    t_ei = time.perf_counter() - t0
+        bar = tqdm(total=display_work(layout, content, spec.ei_spp, spec.ei_bundle), desc="elemental images",
+                   unit="px" if not (content.path_traced or spec.ei_bundle) else "sample", unit_scale=True,
+                   leave=False)
+    ei = shade_display(model, content, layout, method=spec.ei_method, samples=spec.ei_samples, spp=spec.ei_spp,
+                       bundle=spec.ei_bundle, seed=spec.seed, progress=bar.update if bar else None)
+    display, t_ei = ei.image, ei.seconds
     if bar:
         bar.close()
     passes = spec.wavelengths(model.lam, content.primaries)
@@ -259,10 +280,15 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None, ana
                  "wavelengths_nm": ";".join(",".join(f"{v:.2f}" for v in w.nm) for w in passes),
                  "pupil_mm": spec.pupil_diameter_mm, "eye": spec.eye_model, "seed": spec.seed,
                  "fov_x_deg": fx, "fov_y_deg": fy}
-    write_exr(out / "elemental_images.exr", display, dict(base_meta, kind="elemental_images",
-                                                          method=spec.ei_method, render_s=round(t_ei, 3)))
+    ei_meta = {k: ("none" if v is None else (int(v) if isinstance(v, bool) else v)) for k, v in ei.doc().items()}
+    write_exr(out / "elemental_images.exr", display, dict(base_meta, kind="elemental_images", **ei_meta),
+              extra={"depth.Z": ei.depth, "normal": ei.normal})
     write_png(out / "elemental_images.png", display)
-    log(f"elemental images: {layout.width}x{layout.height} px ({spec.ei_method} chief rays) in {t_ei:.1f} s")
+    how = (f"{ei.spp} ray(s) per pixel over its bundle" if ei.bundle else f"{spec.ei_method} chief rays")
+    if ei.path_traced:
+        how += f", path-traced at {ei.spp} spp"
+    noise = "" if ei.noise_rel is None else f", noise {100 * ei.noise_rel:.2f} % (standard error, RMS/mean)"
+    log(f"elemental images: {layout.width}x{layout.height} px ({how}) in {t_ei:.1f} s{noise}")
 
     if spec.optics not in ("analytic", "mesh"):
         raise ValueError(f"optics = {spec.optics!r}: expected 'analytic' or 'mesh'")
@@ -299,10 +325,17 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None, ana
             if kind == "display":
                 sd = {"type": "scene", "display": layout.emitter_dict(display), **(shapes or {}),
                       "integrator": MESH_INTEGRATOR if shapes is not None else INTEGRATOR}
+            elif content.path_traced:
+                loaded[kind] = content_scene
             else:
                 sd = scene_dict(content)
                 sd["integrator"] = INTEGRATOR
-            loaded[kind] = load_scene(sd)
+            if kind not in loaded:
+                loaded[kind] = load_scene(sd)
+        if kind != "display" and content.path_traced:
+            # The natural view of a Mitsuba scene: the eye placed in the scene's own frame, path-traced.
+            sensor = eye.sensor_dict(content.to_scene, spec.spp, spec.seed)
+            return loaded[kind], sensor, natural_integrator(content)
         return loaded[kind], sensor
 
     images = []
@@ -365,15 +398,16 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None, ana
            "fov_deg": [fx, fy], "resolution": [W, H], "seed": spec.seed,
            "display": {"width": layout.width, "height": layout.height, "pixel_pitch_mm": layout.pixel_pitch,
                        "exr": "elemental_images.exr", "png": "elemental_images.png",
-                       "method": spec.ei_method, "render_s": round(t_ei, 3)},
+                       **ei.doc(), "method": spec.ei_method,
+                       "aovs": {"depth": "depth.Z", "normal": "normal"}},
            "images": images,
            "reference": {"exr": "reference_pinhole.exr", "png": "reference_pinhole.png",
                          "pupil_diameter_mm": 0.01},
            "contact_sheet": sheet}
-    stack = {"fov_deg": (fx, fy), "reference": reference, "content_scene": content_scene,
+    stack = {"fov_deg": (fx, fy), "reference": reference, "content_scene": content,
              "images": {(k, f): v for f, pair in by_focus.items() for k, v in pair.items()}}
     for name, fn in analyses:
-        doc[name] = fn(stack, content_scene, out)
+        doc[name] = fn(stack, content, out)
     doc["total_s"] = round(time.perf_counter() - t_all, 3)
     write_json(out / "index.json", doc)
     return doc, stack
