@@ -116,10 +116,10 @@ class SceneSource:
             return  # an environment alone: it surrounds the eye
         bb = scene.bbox()
         lo, hi = np.array(bb.min, dtype=np.float64), np.array(bb.max, dtype=np.float64)
+        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+            return
         corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
         zv = corners @ (self.scale * self.rotation).T + self.translation
-        if not np.all(np.isfinite(zv)):
-            return
         if zv[:, 2].min() >= 0.0:
             raise DesignError(self.label, "", None, "the scene lies behind the eye: in visual space (eye at "
                               "the origin looking along -z) its shapes span z = "

@@ -43,11 +43,13 @@ def _sensor_class(mi):
             self.o, self.d, self.w = _TABLES[key]
 
         def sample_ray(self, time, wavelength_sample, position_sample, aperture_sample, active=True):
+            # Film position -> display pixel. render_rays() hands over pixel centres; with
+            # mi.render's random positions a sample within float32 rounding (~1e-4 px) of a
+            # pixel edge may take its neighbour's ray.
             film = self.film()
-            size, off, full = film.crop_size(), film.crop_offset(), film.size()
-            px = mi.Vector2i(position_sample * mi.Vector2f(size)) + mi.Vector2i(off)
-            px = dr.clip(px, 0, mi.Vector2i(full) - 1)
-            idx = mi.UInt32(px.y) * mi.UInt32(full.x) + mi.UInt32(px.x)
+            crop = mi.Vector2i(film.crop_size())
+            px = dr.clip(mi.Vector2i(dr.floor(position_sample * mi.Vector2f(crop))), 0, crop - 1)
+            idx = mi.UInt32(px.y) * mi.UInt32(crop.x) + mi.UInt32(px.x)
             o = dr.gather(mi.Point3f, self.o, idx, active)
             d = dr.gather(mi.Vector3f, self.d, idx, active)
             w = dr.gather(mi.Float, self.w, idx, active)
@@ -82,7 +84,7 @@ def _table(mi, origins, directions, weights):
     # Aligned copies: a kernel reading a mapped numpy buffer bakes its alignment into the IR.
     return (mi.Point3f(*from_numpy(mi.Float, *(o[:, k] for k in range(3)))),
             mi.Vector3f(*from_numpy(mi.Float, *(d[:, k] for k in range(3)))),
-            from_numpy(mi.Float, np.asarray(weights, dtype=np.float32))[0])
+            from_numpy(mi.Float, np.asarray(weights, dtype=np.float32)))
 
 
 def sensor(origins, directions, weights, width: int, height: int, spp: int, seed: int = 0):
@@ -117,6 +119,29 @@ def integrator(max_depth: int) -> dict:
     return {"type": "path", "max_depth": int(max_depth), "hide_emitters": False}
 
 
+def _sample_pixels(mi, scene, sens, integ, width: int, height: int, spp: int, seed: int) -> np.ndarray:
+    """Mean radiance (N, 3) of ``spp`` integrator samples per display pixel along the sensor's rays.
+
+    The loop of ``mi.render`` without its film: each sample asks the sensor for its pixel's
+    ray at the pixel's centre (so no sample can fall across a pixel edge) and Mitsuba's
+    integrator for the radiance; the samples of a pixel are summed in one block reduction.
+    """
+    import drjit as dr
+
+    n = width * height
+    lane = dr.arange(mi.UInt32, n * spp)
+    pix = lane // spp
+    pos = (mi.Vector2f(mi.Float(pix % width), mi.Float(pix // width)) + 0.5) / mi.ScalarVector2f(width, height)
+    sampler = sens.sampler().clone()
+    sampler.seed(seed, n * spp)
+    ray, w = sens.sample_ray(0.0, sampler.next_1d(), pos, sampler.next_2d())
+    L, valid, _ = integ.sample(scene, sampler, mi.RayDifferential3f(ray), None, w[0] > 0)
+    L = dr.select(valid, L * w, 0.0)
+    out = [dr.block_sum(L[k], spp) / spp for k in range(3)]
+    dr.eval(*out)
+    return np.stack([np.asarray(c, dtype=np.float64) for c in out], axis=1)
+
+
 def render_rays(scene, rays_for_pass, width: int, height: int, spp: int, max_depth: int, seed: int = 0,
                 fresh_rays: bool = False, progress=None) -> Shaded:
     """Path-trace ``spp`` samples per pixel along tabulated rays.
@@ -126,7 +151,7 @@ def render_rays(scene, rays_for_pass, width: int, height: int, spp: int, max_dep
     ``fresh_rays`` every pass is one sample per pixel along new rays (a ray
     bundle integrated by Monte Carlo); else one table serves all passes. A
     pixel's value is the mean over its valid rays. ``progress(samples)`` is
-    called per pass with the samples done per pixel.
+    called per pass with the pixel-samples done.
     """
     import time
 
@@ -153,15 +178,14 @@ def render_rays(scene, rays_for_pass, width: int, height: int, spp: int, max_dep
         o, d, ok = table
         sens, key = sensor(o, d, ok.astype(np.float32), width, height, s, seed=seed * 7919 + p)
         try:
-            img = np.array(mi.render(scene, sensor=sens, integrator=integ, spp=s, seed=seed * 7919 + p),
-                           dtype=np.float64)[..., :3].reshape(n, 3)
+            img = _sample_pixels(mi, scene, sens, integ, width, height, s, seed * 7919 + p)
         finally:
             release(key)
         h = p % 2
         acc[h] += img * s
         cnt[h] += ok * s
         if progress is not None:
-            progress(s)
+            progress(s * n)
     tot = cnt[0] + cnt[1]
     has = tot > 0
     out = np.zeros((n, 3))

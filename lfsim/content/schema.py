@@ -312,7 +312,7 @@ def content_from_dict(data: dict, file: str = "<dict>", base: Path = Path(".")) 
     if "pupil_diameter" in view:
         v["pupil_diameter_mm"] = _num(file, "view.pupil_diameter", view["pupil_diameter"], positive=True)
     bg = _rgb(file, "view.background", view.get("background", 0.0))
-    if src is not None and "background" in view:
+    if src is not None and any(b > 0 for b in bg):
         raise DesignError(file, "view.background", view["background"], "a Mitsuba scene has its own "
                           "environment: give it a constant or envmap emitter instead")
     content = ContentScene(file, str(data.get("name", Path(file).stem)), out, bg, ContentView(**v),
