@@ -15,7 +15,7 @@ sys.modules["accuracy_report"] = accuracy_report  # dataclasses resolve their mo
 _SPEC.loader.exec_module(accuracy_report)
 
 KNOBS = ["tracer_precision", "newton_tol", "newton_max_iter", "pupil", "mtf_grid", "fields", "refine", "stride", "spp",
-         "tessellation", "wavelength_samples", "sampler", "accommodation"]
+         "tessellation", "wavelength_samples", "sampler", "ei_spp", "accommodation"]
 
 
 def test_quick_report_has_a_row_and_a_plot_per_knob(tmp_path):

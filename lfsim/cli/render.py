@@ -54,6 +54,37 @@ def cmd_focal_stack(args) -> int:
     return 0
 
 
+def cmd_export(args) -> int:
+    from pathlib import Path
+
+    from ..render.export import export_mitsuba
+
+    if args.mitsuba is None:
+        raise InputError("lfsim export: give an output: --mitsuba DIR (a scene plain mitsuba renders)")
+    content, design_path, design, focus, cdp, pupil = _view_of(args, "lfsim export")
+    if args.focus_mm is None:
+        focus = focus[:1]
+    if len(focus) != 1:
+        raise InputError(f"--focus-mm = {args.focus_mm!r}: the exported eye has one focus distance (give one)")
+    for flag, v in (("--spp", args.spp), ("--ei-spp", args.ei_spp)):
+        if v < 1:
+            raise InputError(f"{flag} = {v}: must be >= 1")
+    if not (math.isfinite(args.tessellation) and args.tessellation > 0):
+        raise InputError(f"--tessellation = {args.tessellation!r}: must be > 0")
+    res = _int_pair(args.resolution, "--resolution") if args.resolution else None
+    _writable(args.mitsuba, "--mitsuba")
+    log = (lambda *a, **k: None) if args.json else (lambda msg: print(msg, file=sys.stderr))
+    doc = export_mitsuba(design, content, args.mitsuba, cdp, focus[0], pupil, resolution=res, spp=args.spp,
+                         tessellation=args.tessellation, ei_spp=args.ei_spp, log=log)
+    if args.json:
+        print(_dump(doc))
+        return 0
+    print(f"{Path(design_path).name} + {Path(args.content).name}: {doc['shapes']} optics shapes, display, "
+          f"thinlens eye (focus {focus[0]:g} mm, {pupil:g} mm pupil) -> {Path(args.mitsuba) / 'scene.xml'}")
+    print(f"  render it: cd {args.mitsuba} && mitsuba -m scalar_rgb scene.xml -o retina.exr")
+    return 0
+
+
 def cmd_gradcheck(args) -> int:
     from ..render.diff_render import ViewSpec
     from ..render.gradcheck import run, table
@@ -228,6 +259,23 @@ def register(sub) -> None:
     _add_set(fs)
     fs.add_argument("--json", action="store_true")
     fs.set_defaults(func=cmd_focal_stack)
+
+    ex = sub.add_parser("export", help="write a design's display path as a Mitsuba scene (XML + PLY + the "
+                        "elemental images) that plain mitsuba renders")
+    ex.add_argument("design", nargs="?", help="InI design (default: the content file's [view] design)")
+    ex.add_argument("--mitsuba", metavar="DIR", help="write DIR/scene.xml, its meshes and elemental images")
+    ex.add_argument("--content", default=DEFAULT_CONTENT, help=f"content shown on the display (default "
+                    f"{DEFAULT_CONTENT})")
+    ex.add_argument("--focus-mm", help="the eye's focus distance, mm (default: the content's first)")
+    ex.add_argument("--cdp-mm", help="CDP distance the tunable lens is set to, mm (inf allowed)")
+    ex.add_argument("--pupil-mm", type=float, help="eye pupil diameter, mm (default: the content's, else 3)")
+    ex.add_argument("--spp", type=int, default=256, help="samples per pixel written into the scene (default 256)")
+    ex.add_argument("--ei-spp", type=int, default=16, help="samples per display pixel of a path-traced content")
+    ex.add_argument("--resolution", help="W,H of the eye's film (default 512 wide, the display's aspect)")
+    ex.add_argument("--tessellation", type=float, default=1.0, help="mesh density, x the defaults (default 1)")
+    _add_set(ex)
+    ex.add_argument("--json", action="store_true")
+    ex.set_defaults(func=cmd_export)
 
     gcp = sub.add_parser("gradcheck", help="AD derivatives of a retinal render loss against central finite "
                          "differences, with the boundary (visibility-edge) term per parameter")
