@@ -342,6 +342,21 @@ def mitsuba():
     return mi
 
 
+_PLUGINS: set[tuple[str, str, str]] = set()
+
+
+def register_plugin(kind: str, name: str, make_class):
+    """Register a Python Mitsuba plugin once per variant (``kind``: "sensor", "bsdf",
+    "integrator", ...; ``make_class(mi)`` defines its class); returns the mitsuba module."""
+    mi = mitsuba()
+    key = (mi.variant(), kind, name)
+    if key not in _PLUGINS:
+        cls = make_class(mi)
+        getattr(mi, f"register_{kind}")(name, lambda props: cls(props))
+        _PLUGINS.add(key)
+    return mi
+
+
 def mitsuba_variant(spectral: bool = False) -> str:
     """Mitsuba variant matching the Dr.Jit back end (always differentiable)."""
     device = init()

@@ -140,10 +140,9 @@ def parse_scene_section(file: str, sec, base: Path) -> SceneSource:
     """The content TOML's ``[scene]`` table (module docstring)."""
     if not isinstance(sec, dict):
         raise DesignError(file, "scene", sec, "expected a table { file = ..., units = ... }")
-    unknown = set(sec) - {"file", "units", "rotate_deg", "translate_mm", "max_depth"}
-    if unknown:
-        k = sorted(unknown)[0]
-        raise DesignError(file, f"scene.{k}", sec[k], "unknown key")
+    from .schema import no_unknown
+
+    no_unknown(file, "scene.", sec, {"file", "units", "rotate_deg", "translate_mm", "max_depth"})
     src = sec.get("file")
     if not isinstance(src, str) or not src:
         raise DesignError(file, "scene.file", src, "expected a Mitsuba scene file (XML), relative to this file")

@@ -20,13 +20,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..backend import from_numpy, mitsuba
+from ..backend import from_numpy, mitsuba, register_plugin
 
 PLUGIN_NAME = "lfsim_pixel_rays"
 #: Ray tables by id (Mitsuba properties hold only plain values).
 _TABLES: dict[str, tuple] = {}
 _ids = itertools.count()
-_registered = False
 #: Samples per Mitsuba launch (pixels × spp): bounds the wavefront's memory.
 SAMPLES_PER_LAUNCH = 1 << 24
 
@@ -68,13 +67,7 @@ def _sensor_class(mi):
 
 def register():
     """Register ``lfsim_pixel_rays`` (idempotent); returns the mitsuba module."""
-    global _registered
-    mi = mitsuba()
-    if not _registered:
-        cls = _sensor_class(mi)
-        mi.register_sensor(PLUGIN_NAME, lambda props: cls(props))
-        _registered = True
-    return mi
+    return register_plugin("sensor", PLUGIN_NAME, _sensor_class)
 
 
 def _table(mi, origins, directions, weights):

@@ -160,14 +160,11 @@ def _file(file, key, v, base: Path) -> str:
 
 def parse_rgbd(file: str, key: str, o: dict, base: Path, i: int) -> RgbdObject:
     """An ``[[objects]]`` table of type ``rgbd`` (module docstring)."""
-    from .schema import _num, _rgb
+    from .schema import _num, _rgb, no_unknown
 
     allowed = {"type", "name", "image", "depth", "depth_convention", "depth_scale_mm", "fov_deg", "radiance",
                "max_jump", "stride"}
-    unknown = set(o) - allowed
-    if unknown:
-        k = sorted(unknown)[0]
-        raise DesignError(file, f"{key}.{k}", o[k], "unknown key")
+    no_unknown(file, f"{key}.", o, allowed)
     conv = o.get("depth_convention")
     if conv not in CONVENTIONS:
         raise DesignError(file, f"{key}.depth_convention", conv,

@@ -168,6 +168,14 @@ def _primaries(file, data) -> dict | None:
     return out
 
 
+def no_unknown(file, prefix: str, table: dict, allowed) -> None:
+    """A one-line error for the first key of ``table`` not in ``allowed`` (``prefix``: its dotted path)."""
+    unknown = set(table) - set(allowed)
+    if unknown:
+        k = sorted(unknown)[0]
+        raise DesignError(file, f"{prefix}{k}", table[k], "unknown key")
+
+
 def _num(file, key, v, positive=False, allow_inf=False):
     if isinstance(v, bool) or not isinstance(v, (int, float)):
         raise DesignError(file, key, v, "expected a number")
@@ -291,10 +299,7 @@ def content_from_dict(data: dict, file: str = "<dict>", base: Path = Path(".")) 
     view = data.get("view", {})
     if not isinstance(view, dict):
         raise DesignError(file, "view", view, "expected a table")
-    unknown = set(view) - {"design", "cdp_mm", "focus_mm", "pupil_diameter", "background"}
-    if unknown:
-        k = sorted(unknown)[0]
-        raise DesignError(file, f"view.{k}", view[k], "unknown key")
+    no_unknown(file, "view.", view, {"design", "cdp_mm", "focus_mm", "pupil_diameter", "background"})
     v = {}
     if "design" in view:
         d = view["design"]

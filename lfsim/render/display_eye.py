@@ -17,13 +17,12 @@ import itertools
 
 import drjit as dr
 
-from . import mitsuba
+from ..backend import register_plugin
 
 PLUGIN_NAME = "lfsim_display_eye"
 #: ReverseOptics objects by id (Mitsuba properties hold only plain values).
 _OPTICS: dict[str, object] = {}
 _ids = itertools.count()
-_registered = False
 #: Distance (mm) in front of the display plane where the handed-over ray starts.
 LAUNCH_GAP = 0.01
 
@@ -111,13 +110,7 @@ def _sensor_class(mi):
 
 def register():
     """Register ``lfsim_display_eye`` (idempotent); returns the mitsuba module."""
-    global _registered
-    mi = mitsuba()
-    if not _registered:
-        cls = _sensor_class(mi)
-        mi.register_sensor(PLUGIN_NAME, lambda props: cls(props))
-        _registered = True
-    return mi
+    return register_plugin("sensor", PLUGIN_NAME, _sensor_class)
 
 
 def sensor_dict(eye_spec, optics_key: str, spp: int, seed: int = 0) -> dict:
