@@ -65,7 +65,8 @@ def scene_dict(content: ContentScene) -> dict:
     mi = mitsuba()
     d = {"type": "scene"}
     if content.scene is not None:
-        raise ValueError(f"{content.path}: a Mitsuba-scene content has no quad scene dict (ContentScene.mitsuba_scene)")
+        raise ValueError(f"{content.path}: a Mitsuba scene is path-traced content, which this verb does not "
+                         "render (it takes quads and RGB-D objects); lfsim focal-stack renders it")
     for i, q in enumerate(content.objects):
         if not isinstance(q, Quad):  # an RGB-D height field (lfsim.content.rgbd)
             d[f"content_{i}_{q.name}"] = q.mesh()
