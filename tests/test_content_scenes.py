@@ -287,3 +287,16 @@ def test_ray_bundles_average_over_the_rays_that_reach_the_window(scenes):
         return float(np.mean(np.diff(y, axis=1) ** 2))
 
     assert rough(bundle.image) < rough(chief.image)
+
+
+def test_a_content_file_alone_is_a_focal_stack_and_stacks_compare(scenes, tmp_path, capsys):
+    """`lfsim focal-stack CONTENT.toml` takes the design from the content's [view]; `lfsim compare`
+    of two stacks compares their images (RGB), not the elemental images' depth/normal AOVs."""
+    out = tmp_path / "fs"
+    small = ["--focus-mm", "1000", "--spp", "1", "--resolution", "48,27", "--out", str(out)]
+    assert main(["focal-stack", str(scenes / "fig9_wall.toml"), *small]) == 0
+    doc = json.loads((out / "index.json").read_text())
+    assert doc["design"].endswith("ini_ideal.toml") and doc["content"].endswith("fig9_wall.toml")
+    capsys.readouterr()
+    assert main(["compare", str(out), str(out), "--json"]) == 0
+    assert "unexpected shape" not in capsys.readouterr().err

@@ -53,6 +53,11 @@ def read_image(path) -> tuple[np.ndarray, list[str]]:
             channels = {k: np.asarray(v.pixels) for k, v in f.channels().items()}
     except Exception as e:  # OpenEXR raises RuntimeError for anything it cannot read
         raise CompareInputError(f"{p}: not a readable EXR image ({' '.join(str(e).split())})") from None
+    # The image is its RGB(A) layer where it has one: other layers are AOVs (lfsim's elemental
+    # images carry depth.Z and normal beside RGB), not what an image comparison compares.
+    image = [k for k in ("RGBA", "RGB") if k in channels]
+    if image:
+        channels = {image[0]: channels[image[0]]}
     names, planes = [], []
     for key in sorted(channels):
         arr = channels[key]

@@ -83,11 +83,30 @@ def content_path(path: str) -> str:
     return path
 
 
+def _is_content_file(path) -> bool:
+    """Whether ``path`` is a content file (a Mitsuba XML, or a TOML with [[objects]] or [scene]
+    and no [[surfaces]]) rather than a design."""
+    import tomllib
+    from pathlib import Path
+
+    p = Path(path)
+    if p.suffix.lower() == ".xml":
+        return True
+    try:
+        data = tomllib.loads(p.read_text())
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return False
+    return "surfaces" not in data and ("objects" in data or "scene" in data)
+
+
 def _view_of(args, verb: str):
     """The content, design and eye view of a render verb: ``(content, design_path, design, focus_mm,
     cdp_mm, pupil_mm)``, from the arguments or else the content file's ``[view]``."""
     from ..content import load_content
 
+    if args.design is not None and args.content == DEFAULT_CONTENT and _is_content_file(args.design):
+        # `lfsim focal-stack scenes/tabletop.toml`: a content file alone; its [view] names the design.
+        args.content, args.design = args.design, None
     args.content = content_path(args.content)
     content = load_content(args.content)
     view = content.view

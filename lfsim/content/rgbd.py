@@ -2,7 +2,7 @@
 
 A content TOML object::
 
-    [[objects]]
+    [[objects]]                # required: image, depth, depth_convention, fov_deg
     type = "rgbd"
     image = "photo.png"        # colour: PNG/JPEG (sRGB, decoded to linear) or EXR (linear)
     depth = "photo_depth.exr"  # depth map, the image's size: EXR (float) or 8/16-bit PNG (raw counts)
@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..design.errors import DesignError
+from ..design.errors import MISSING, DesignError
 
 CONVENTIONS = ("z", "range")
 
@@ -165,6 +165,10 @@ def parse_rgbd(file: str, key: str, o: dict, base: Path, i: int) -> RgbdObject:
     allowed = {"type", "name", "image", "depth", "depth_convention", "depth_scale_mm", "fov_deg", "radiance",
                "max_jump", "stride"}
     no_unknown(file, f"{key}.", o, allowed)
+    for req in ("image", "depth", "depth_convention", "fov_deg"):
+        if req not in o:
+            raise DesignError(file, f"{key}.{req}", MISSING, "required for an rgbd object (module docs: "
+                              "image, depth, depth_convention, fov_deg)")
     conv = o.get("depth_convention")
     if conv not in CONVENTIONS:
         raise DesignError(file, f"{key}.depth_convention", conv,

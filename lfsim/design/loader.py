@@ -349,10 +349,10 @@ def system_from_dict(data: dict, file: str = "<dict>") -> System:
     ctx = _Ctx(file)
     if not isinstance(data, dict):
         raise ctx.err("", data, "a design file must be a TOML table")
-    if "surfaces" not in data and ("objects" in data or "view" in data):
-        key = "objects" if "objects" in data else "view"
-        raise ctx.err(key, "[...]", "this is a content scene ([[objects]], [view]), not a design: pass it "
-                      "as --content, and a design file (with [[surfaces]]) as DESIGN")
+    if "surfaces" not in data and ("objects" in data or "view" in data or "scene" in data):
+        key = next(k for k in ("objects", "scene", "view") if k in data)
+        raise ctx.err(key, "[...]", "this is a content scene ([[objects]] or [scene], with [view]), not a "
+                      "design: pass it as --content, and a design file (with [[surfaces]]) as DESIGN")
     ctx.no_unknown(data, TOP_KEYS, "")
 
     arrays: dict[str, LensletArray] = {}
