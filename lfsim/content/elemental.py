@@ -121,7 +121,7 @@ def _stop_samples(model, rng, n: int) -> np.ndarray:
     return 2.0 * u - 1.0
 
 
-def display_work(layout, content, spp: int, bundle: bool, samples: int = 1) -> int:
+def display_work(layout, content, spp: int, bundle: bool) -> int:
     """Pixel-samples :func:`shade_display` reports to ``progress`` in all."""
     n = layout.width * layout.height
     return n * (int(spp) if (content.path_traced or bundle) else 1)
@@ -153,9 +153,6 @@ def shade_display(model, content, layout, method: str = "real", samples: int = 1
     src = content.scene
     scene = content.mitsuba_scene()
 
-    def to_scene(o, d):
-        return (o, d) if src is None else src.rays_to_scene(o, d)
-
     def rays_for_pass(p):
         if p == 0 and not bundle:
             o, d, ok = o0, d0, ok0
@@ -164,22 +161,22 @@ def shade_display(model, content, layout, method: str = "real", samples: int = 1
             jitter = (rng.random((len(centres), 2)) - 0.5) * layout.pixel_pitch
             o, d, ok = visual_rays(model, layout, centres + jitter, method, k,
                                    rho=_stop_samples(model, rng, len(centres)))
-        return (*to_scene(o, d), ok)
+        return (*content.rays_to_scene(o, d), ok)
 
     if content.path_traced or bundle:
-        if content.path_traced:
-            depth_max = src.max_depth
-        else:
-            depth_max = 1  # emission of the first hit
+        depth_max = src.max_depth if content.path_traced else 1  # 1: emission of the first hit
         sh = pathtrace.render_rays(scene, rays_for_pass, W, H, spp, depth_max, seed=seed, fresh_rays=bundle,
                                    progress=progress)
         img, n_spp, noise = sh.image, sh.spp, sh.noise_rel
+    elif int(samples) == 1:  # the chief rays already traced
+        img = shade(scene, o0, d0, ok0, content.background).reshape(H, W, 3)
+        if progress is not None:
+            progress(W * H)
+        n_spp, noise = 1, None
     else:
         img = elemental_images(model, scene, layout, method, samples, k, content.background,
                                progress=progress)
         n_spp, noise = int(samples) ** 2, None
-    so, sd = to_scene(o0, d0)
-    depth, normal = pathtrace.surface_aovs(scene, so, sd, ok0, 1.0 if src is None else src.scale,
-                                           None if src is None else src.normals_to_visual)
+    depth, normal = content.first_surface(o0, d0, ok0)
     return ElementalImages(img, depth.reshape(H, W).astype(np.float32), normal.reshape(H, W, 3).astype(np.float32),
                            method, bool(bundle), content.path_traced, n_spp, noise, time.perf_counter() - t0)

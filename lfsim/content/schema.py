@@ -120,6 +120,21 @@ class ContentScene:
             self._mi_scene = mitsuba().load_dict(scene_dict(self))
         return self._mi_scene
 
+    def rays_to_scene(self, origins: np.ndarray, directions: np.ndarray):
+        """Visual-space rays (N, 3) in the Mitsuba scene's frame (unchanged for objects)."""
+        return (origins, directions) if self.scene is None else self.scene.rays_to_scene(origins, directions)
+
+    def first_surface(self, origins: np.ndarray, directions: np.ndarray, valid=None):
+        """``(distance mm (N,), visual-space unit normal (N, 3))`` of the first content surface along
+        visual-space rays: inf / 0 where a ray meets nothing, 0 / 0 where ``valid`` is False."""
+        from .pathtrace import surface_aovs
+
+        so, sd = self.rays_to_scene(origins, directions)
+        ok = np.ones(len(origins), dtype=bool) if valid is None else valid
+        if self.scene is None:
+            return surface_aovs(self.mitsuba_scene(), so, sd, ok)
+        return surface_aovs(self.mitsuba_scene(), so, sd, ok, self.scene.scale, self.scene.normals_to_visual)
+
     @property
     def to_scene(self) -> np.ndarray:
         """Visual space → the Mitsuba scene's frame (4×4; identity for objects)."""

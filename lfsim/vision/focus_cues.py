@@ -22,33 +22,17 @@ import numpy as np
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 
 
-def column_depths(content_scene, fov_deg, width: int, height: int, rows: int = 9) -> np.ndarray:
-    """Distance (mm, along the line of sight −z) of the content seen in each image column
-    (median over ``rows`` rows across the image; NaN where nothing is hit)."""
-    from ..backend import from_numpy
-    from ..render import mitsuba
-
-    mi = mitsuba()
+def column_depths(content, fov_deg, width: int, height: int, rows: int = 9) -> np.ndarray:
+    """Distance (mm, along the line of sight −z) of the content (a ContentScene) seen in each
+    image column (median over ``rows`` rows across the image; NaN where nothing is hit)."""
     fx, fy = (math.radians(v) for v in fov_deg)
     ax = ((np.arange(width) + 0.5) / width - 0.5) * fx
     ay = (0.5 - (np.linspace(0.5, height - 0.5, rows)) / height) * fy
     AX, AY = np.meshgrid(ax, ay)
     d = np.stack([np.tan(AX), np.tan(AY), -np.ones_like(AX)], axis=-1).reshape(-1, 3)
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    if hasattr(content_scene, "mitsuba_scene"):  # a ContentScene: its scene may sit in its own frame
-        from ..content.pathtrace import surface_aovs
-
-        src = content_scene.scene
-        o = np.zeros_like(d)
-        so, sd = (o, d) if src is None else src.rays_to_scene(o, d)
-        t, _ = surface_aovs(content_scene.mitsuba_scene(), so, sd, np.ones(len(d), dtype=bool),
-                            1.0 if src is None else src.scale)
-        z = np.where(np.isfinite(t), t * -d[:, 2], np.nan)
-    else:
-        d32 = d.astype(np.float32)
-        ray = mi.Ray3f(mi.Point3f(0.0, 0.0, 0.0), mi.Vector3f(*from_numpy(mi.Float, *(d32[:, k] for k in range(3)))))
-        si = content_scene.ray_intersect(ray)
-        z = np.where(np.asarray(si.is_valid()), -np.asarray(si.p.z, dtype=np.float64), np.nan)
+    t, _ = content.first_surface(np.zeros_like(d), d)
+    z = np.where(np.isfinite(t), t * -d[:, 2], np.nan)
     z = z.reshape(rows, width)
     out = np.full(width, np.nan)
     hit = ~np.all(np.isnan(z), axis=0)
