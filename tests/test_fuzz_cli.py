@@ -148,6 +148,10 @@ def files(tmp_path_factory) -> dict[str, Path]:
     (d / "bad_content.toml").write_text(CONTENT.replace("@DESIGN@", str(d / "tiny_ini.toml")).replace("radiance = 1.0",
                                                                                            "radiance = -1"))
     (d / "bad_rays.csv").write_text("x,y,z,dx,dy,dz\n0,0,nan,0,0,1\n")
+    shutil.copy(ROOT / "tests" / "data" / "lensfiles" / "dar_test.seq", d / "lens.seq")
+    shutil.copy(ROOT / "tests" / "data" / "lensfiles" / "US00583336-2-scaled.zmx", d / "lens.zmx")
+    (d / "bad.seq").write_text("SO 0 1e11\nS 0 1 NOSUCHGLASS_XYZ\nS 0 abc\nSI 0 0\n")
+    (d / "bad.zmx").write_bytes(b"\xff\xfe" + "MODE SEQ\nSURF 0\n  TYPE TOROIDAL\n".encode("utf-16-le"))
     (d / "corrupt.exr").write_bytes(b"v/1\x01" + os.urandom(200))
     (d / "empty").write_text("")
     (d / "a_folder").mkdir()
@@ -217,6 +221,12 @@ def verbs(files) -> dict:
         "params": ([st.one_of(lens, ini)], {"--set": SET, "--json": None}, None),
         "layout": ([lens], {"--set": SET, "--json": None}, "dir"),
         "ini": ([ini], {"--json": None, "--set": SET}, None),
+        "import": ([_file(files, ["lens.seq", "lens.zmx"], ("bad.seq", "bad.zmx", "empty", "garbage.toml",
+                                                           "a_folder", "missing.seq"))], {}, "toml"),
+        "export": ([st.one_of(lens, ini)], {"--zmx": st.sampled_from(["ZMX", "ZMX", "BADEXT"]),
+                                            "--seq": st.sampled_from(["SEQ", "SEQ", str(files["a_folder"])]),
+                                            "--lenslet": _pool(["1,1"], ["x", "-1,0", "99,0", ""]),
+                                            "--set": SET}, "lensfile"),
         "analyze": ([ini], {"--stride": _pool(["1,1", "2,2"], BAD_PAIR), "--symmetry": _pool(["none", "x"], ["z"]),
                             "--depths": _pool(["1"], ["2", "nan", "x"]), "--no-plots": None, "--json": None,
                             "--set": SET}, "dir"),
@@ -276,6 +286,11 @@ def command(draw, files, out_root: Path):
     if verb == "regress":
         argv += ["--baseline", str(out_root / "baseline"), "--out", str(out_root / "out")]
         argv = [str(out_root / "report.xml") if a == "JUNIT" else a for a in argv]
+    elif out_kind == "toml":
+        argv += ["--out", str(out_root / "out.toml")]
+    elif out_kind == "lensfile":
+        names = {"ZMX": "out.zmx", "SEQ": "out.seq", "BADEXT": "out.txt"}
+        argv = [str(out_root / names[a]) if a in names else a for a in argv]
     elif out_kind == "file":
         if draw(st.booleans()):
             argv += ["--out", str(out_root / "out.csv")]
@@ -292,6 +307,10 @@ def _prepare(out_root: Path, verb: str, before: str) -> None:
         return
     if verb == "trace":
         (out_root / "out.csv").write_text("earlier output\n")
+        return
+    if verb in ("import", "export"):
+        for name in ("out.toml", "out.zmx", "out.seq"):
+            (out_root / name).write_text("earlier output\n")
         return
     out.mkdir(parents=True, exist_ok=True)
     if before == "previous" and MANIFEST.get(verb):

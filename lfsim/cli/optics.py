@@ -152,6 +152,23 @@ def cmd_layout(args) -> int:
     return 0
 
 
+def cmd_import(args) -> int:
+    from pathlib import Path
+
+    from ..design.lensfiles import write_imported
+    from ..fileio import check_writable
+
+    if Path(args.out).suffix.lower() != ".toml":
+        raise InputError(f"--out = {args.out!r}: the design file must end in .toml")
+    check_writable(args.out, "--out")
+    imp = write_imported(args.file, args.out)
+    for note in imp.notes:
+        print(f"lfsim import: note: {note}", file=sys.stderr)
+    n = len(imp.raw["surfaces"])
+    print(f"{Path(args.file).name}: {n} surfaces -> {args.out}")
+    return 0
+
+
 def register(sub) -> None:
     """Add this module's verbs to the `lfsim` sub-command parser."""
     t = sub.add_parser("trace", help="trace rays from a CSV through a design")
@@ -186,6 +203,11 @@ def register(sub) -> None:
     _add_set(ln)
     ln.add_argument("--json", action="store_true", help="the same data as JSON")
     ln.set_defaults(func=cmd_lens)
+
+    im = sub.add_parser("import", help="read a CODE V .seq or Zemax .zmx lens file into a design file")
+    im.add_argument("file", help="FILE.seq (CODE V) or FILE.zmx (Zemax, UTF-16 or UTF-8)")
+    im.add_argument("--out", required=True, help="the design file to write (.toml, atomically)")
+    im.set_defaults(func=cmd_import)
 
     lay = sub.add_parser("layout", help="layout and spot-diagram pictures plus a summary")
     lay.add_argument("design")

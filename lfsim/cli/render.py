@@ -59,8 +59,13 @@ def cmd_export(args) -> int:
 
     from ..render.export import export_mitsuba
 
+    if args.zmx is not None or args.seq is not None:
+        return _export_lens(args)
+    if args.lenslet is not None:
+        raise InputError("--lenslet: only with --zmx or --seq")
     if args.mitsuba is None:
-        raise InputError("lfsim export: give an output: --mitsuba DIR (a scene plain mitsuba renders)")
+        raise InputError("lfsim export: give an output: --mitsuba DIR (a scene plain mitsuba renders), "
+                         "--zmx FILE or --seq FILE (the lens as a Zemax or CODE V file)")
     content, design_path, design, focus, cdp, pupil = _view_of(args, "lfsim export")
     if args.focus_mm is None:
         focus = focus[:1]
@@ -82,6 +87,39 @@ def cmd_export(args) -> int:
     print(f"{Path(design_path).name} + {Path(args.content).name}: {doc['shapes']} optics shapes, display, "
           f"thinlens eye (focus {focus[0]:g} mm, {pupil:g} mm pupil) -> {Path(args.mitsuba) / 'scene.xml'}")
     print(f"  render it: cd {args.mitsuba} && mitsuba -m scalar_rgb scene.xml -o retina.exr")
+    return 0
+
+
+def _export_lens(args) -> int:
+    from ..design.lensfiles import export_text
+    from ..fileio import write_text
+    from .common import _load_design
+
+    if args.mitsuba is not None:
+        raise InputError("lfsim export: --mitsuba and --zmx/--seq are separate runs; give one kind")
+    if args.design is None:
+        raise InputError("lfsim export: give the DESIGN to write as a lens file")
+    lenslet = None
+    if args.lenslet is not None:
+        try:
+            lenslet = tuple(int(v) for v in args.lenslet.split(","))
+        except ValueError:
+            lenslet = ()
+        if len(lenslet) != 2 or min(lenslet) < 0:
+            raise InputError(f"--lenslet = {args.lenslet!r}: expected M,N, two integers >= 0 (0-based lenslet)")
+    outs = [(flag, path, fmt) for flag, path, fmt in (("--zmx", args.zmx, "zmx"), ("--seq", args.seq, "seq"))
+            if path is not None]
+    for flag, path, fmt in outs:
+        if not path.lower().endswith(f".{fmt}"):
+            raise InputError(f"{flag} = {path!r}: the file must end in .{fmt}")
+        _writable(path, flag)
+    design = _load_design(args)
+    texts = [(flag, path, *export_text(design, fmt, lenslet)) for flag, path, fmt in outs]  # all, then write
+    for _flag, path, text, notes in texts:
+        write_text(path, text)
+        for note in notes:
+            print(f"lfsim export: note: {note}", file=sys.stderr)
+        print(f"{args.design} -> {path}")
     return 0
 
 
@@ -261,9 +299,14 @@ def register(sub) -> None:
     fs.set_defaults(func=cmd_focal_stack)
 
     ex = sub.add_parser("export", help="write a design's display path as a Mitsuba scene (XML + PLY + the "
-                        "elemental images) that plain mitsuba renders")
-    ex.add_argument("design", nargs="?", help="InI design (default: the content file's [view] design)")
+                        "elemental images) that plain mitsuba renders, or the lens as a Zemax/CODE V file")
+    ex.add_argument("design", nargs="?", help="InI design (default: the content file's [view] design); any "
+                    "design with --zmx/--seq")
     ex.add_argument("--mitsuba", metavar="DIR", help="write DIR/scene.xml, its meshes and elemental images")
+    ex.add_argument("--zmx", metavar="FILE", help="write the lens as a Zemax .zmx file (any design)")
+    ex.add_argument("--seq", metavar="FILE", help="write the lens as a CODE V .seq file (any design)")
+    ex.add_argument("--lenslet", metavar="M,N", help="with --zmx/--seq: the lenslet (0-based) whose sub-system "
+                    "a design with lenslet arrays is written as")
     ex.add_argument("--content", default=DEFAULT_CONTENT, help=f"content shown on the display (default "
                     f"{DEFAULT_CONTENT})")
     ex.add_argument("--focus-mm", help="the eye's focus distance, mm (default: the content's first)")

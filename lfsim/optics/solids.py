@@ -177,7 +177,8 @@ def crossings(system: System, points: int = 17) -> list[tuple[int, int, float, f
     lenslet array's surfaces: over the lenslet cell; no aperture: the vertex
     only). Where it is negative the surfaces cross inside their apertures (or
     the centre thickness itself is negative), which no lens can do; the
-    worst point of each such element is returned. Pairs with a surface marked
+    worst point of each such element is returned (after an odd number of
+    mirrors light runs toward −z and the thickness is counted that way). Pairs with a surface marked
     ``virtual``, and pairs not on one axis (tilted, decentred or globally
     placed), are not checked.
     """
@@ -187,8 +188,10 @@ def crossings(system: System, points: int = 17) -> list[tuple[int, int, float, f
     get = vec.numpy_getter(vec.values())
     out = []
     surfs = system.surfaces
+    flips = 0  # reflections so far: after an odd number light runs toward -z, and so does the glass
     for i in range(len(surfs) - 1):
         a, b = surfs[i], surfs[i + 1]
+        flips += a.interaction in ("reflect", "tir")
         if a.interaction != "refract" or b.interaction == "break" or a.virtual or b.virtual:
             continue
         if a.material.index(system.primary_wavelength_nm) <= 1.0001 or not _coaxial_pair(system, i):
@@ -215,7 +218,7 @@ def crossings(system: System, points: int = 17) -> list[tuple[int, int, float, f
             zb, _, _, inb = sag(float(x), float(y), sb)
             if not (ina and inb):
                 continue
-            t = d + zb - za
+            t = (d + zb - za) * (-1.0 if flips % 2 else 1.0)
             if worst is None or t < worst[1]:
                 worst = (math.hypot(x, y), t)
         if worst is not None and worst[1] < -CROSSING_TOL * max(1.0, abs(d)):
