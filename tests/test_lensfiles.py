@@ -219,8 +219,11 @@ def _ro_model(path: Path):
     from rayoptics.codev import cmdproc
     from rayoptics.zemax import zmxread
 
-    om = (cmdproc.read_lens(path) if path.suffix == ".seq" else zmxread.read_lens_file(path))[0]
-    return om
+    import contextlib
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp, contextlib.chdir(tmp):  # its readers write a log to the cwd
+        return (cmdproc.read_lens(path) if path.suffix == ".seq" else zmxread.read_lens_file(path))[0]
 
 
 #: file, compare at surface (-1 image, -2 the last lens surface), EFL compared (rotationally symmetric)
