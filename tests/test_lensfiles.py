@@ -215,14 +215,15 @@ def _rayoptics():
 
 
 def _ro_model(path: Path):
-    _rayoptics()
-    from rayoptics.codev import cmdproc
-    from rayoptics.zemax import zmxread
-
     import contextlib
     import tempfile
 
-    with tempfile.TemporaryDirectory() as tmp, contextlib.chdir(tmp):  # its readers write a log to the cwd
+    # rayoptics' reader modules open their log files in the working folder when imported
+    with tempfile.TemporaryDirectory() as tmp, contextlib.chdir(tmp):
+        _rayoptics()
+        from rayoptics.codev import cmdproc
+        from rayoptics.zemax import zmxread
+
         return (cmdproc.read_lens(path) if path.suffix == ".seq" else zmxread.read_lens_file(path))[0]
 
 
@@ -282,7 +283,6 @@ def peer_differences(name: str, at: int, efl: bool) -> dict:
 
 @pytest.mark.parametrize("name,at,efl", PEER_CASES)
 def test_rayoptics_agrees(name, at, efl):
-    _rayoptics()
     diff = peer_differences(name, at, efl)
     for key in ("efl", "bfl", "ray"):
         if key in diff:
@@ -293,7 +293,6 @@ def test_rayoptics_difference_explained_by_glass_data():
     """HoO-V2C18Ex27 uses SCHOTT glasses whose rayoptics data (opticalglass's catalog) differ
     from the refractiveindex.info data lfsim ships: the indices differ by ~1e-5, and so do EFL
     and rays, by the amount that index change gives."""
-    _rayoptics()
     path = DATA / "HoO-V2C18Ex27.zmx"
     om = _ro_model(path)
     sm = om["seq_model"]
