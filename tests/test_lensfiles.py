@@ -214,12 +214,18 @@ def _rayoptics():
                                "deprecation parsimonious xlrd openpyxl: its GUI dependencies are not needed)")
 
 
+_RO_LOGS = None
+
+
 def _ro_model(path: Path):
     import contextlib
     import tempfile
 
-    # rayoptics' reader modules open their log files in the working folder when imported
-    with tempfile.TemporaryDirectory() as tmp, contextlib.chdir(tmp):
+    # rayoptics' readers open log files in the working folder (and keep their paths): one
+    # folder outside the checkout for the whole session
+    global _RO_LOGS
+    _RO_LOGS = _RO_LOGS or tempfile.mkdtemp(prefix="rayoptics-logs-")
+    with contextlib.chdir(_RO_LOGS):
         _rayoptics()
         from rayoptics.codev import cmdproc
         from rayoptics.zemax import zmxread
