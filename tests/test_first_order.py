@@ -83,3 +83,64 @@ def test_parabasal_matrix_equals_finite_parabasal_rays(tmp_path):
     e2 /= np.linalg.norm(e2)
     assert abs(np.dot(dp, e2) - My_t[0, 0]) < 1e-7
     assert abs(My_t[1, 0] + 1 / d.first_order().efl) < 1e-12
+
+
+def _ideal_pair(tmp_path, f1, f2, d, mirror_first=False):
+    """Two ideal lenses d apart (object at infinity), optionally met after a flat mirror
+    (light then runs along −z, thicknesses negative)."""
+    s = -1.0 if mirror_first else 1.0
+    head = """
+[[surfaces]]
+name = "M"
+mirror = true
+thickness = -5.0
+semi_diameter = 20.0
+""" if mirror_first else ""
+    text = f"""
+[system]
+aperture = {{ type = "epd", value = 4.0 }}
+field = {{ type = "angle", values = [0, 2] }}
+wavelengths_nm = [587.5618]
+[object]
+distance = inf
+{head}
+[[surfaces]]
+name = "A"
+type = "paraxial"
+focal_length = {f1}
+thickness = {s * d}
+stop = true
+[[surfaces]]
+name = "B"
+type = "paraxial"
+focal_length = {f2}
+thickness = {s * 30.0}
+[[surfaces]]
+name = "IMG"
+dummy = true
+"""
+    p = tmp_path / "pair.toml"
+    p.write_text(text)
+    return lfsim.load(p)
+
+
+def test_a_diverging_ideal_lens_keeps_its_sign_in_the_paraxial_trace(tmp_path):
+    """Gullstrand: 1/f = 1/f1 + 1/f2 − d/(f1 f2); the y-nu trace, the real-ray parabasal
+    route and the closed form agree, with the diverging lens first or second."""
+    for f1, f2, d in ((-26.5219, 50.0, 10.0), (50.0, -26.5219, 10.0), (-40.0, -60.0, 5.0)):
+        design = _ideal_pair(tmp_path, f1, f2, d)
+        efl = 1.0 / (1.0 / f1 + 1.0 / f2 - d / (f1 * f2))
+        par = design.first_order(method="paraxial").efl
+        pb = design.first_order(method="parabasal").efl
+        assert math.isclose(par, efl, rel_tol=1e-12), (f1, f2, par, efl)
+        assert math.isclose(pb, efl, rel_tol=1e-9), (f1, f2, pb, efl)
+
+
+def test_an_ideal_lens_after_a_mirror_keeps_its_power(tmp_path):
+    """Light reflected by a flat mirror meets the same ideal lenses running along −z: the
+    focal length is that of the unfolded pair, by both routes."""
+    f1, f2, d = -26.5219, 50.0, 10.0
+    efl = 1.0 / (1.0 / f1 + 1.0 / f2 - d / (f1 * f2))
+    design = _ideal_pair(tmp_path, f1, f2, d, mirror_first=True)
+    for method in ("paraxial", "parabasal"):
+        assert math.isclose(abs(design.first_order(method=method).efl), abs(efl), rel_tol=1e-9), method

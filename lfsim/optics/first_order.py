@@ -102,7 +102,9 @@ def paraxial_matrices(system: System, wavelength_nm: float):
             M = np.array([[1.0, 0.0], [2.0 * n * s.curvature, 1.0]]) @ M
             n = -n
         elif s.interaction == "paraxial":
-            M = np.array([[1.0, 0.0], [-math.copysign(s.power, n), 1.0]]) @ M
+            # an ideal lens bends along the propagation direction (tan θ' = tan θ − hφ/|n|), so in
+            # reduced angles n·u of either sign its power enters as is
+            M = np.array([[1.0, 0.0], [-s.power, 1.0]]) @ M
         if i == stop:
             M_front = M.copy()
     return M_front, M, n_obj, n
