@@ -20,5 +20,10 @@ fi
 PY=${PYTHON:-python3}
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
-.venv/bin/python -m pip install -q -e '.[test]'
+.venv/bin/python -m pip install -q -e '.[test,peers]'
+# rayoptics reads CODE V and Zemax files: the peer of lfsim's lens-file import in the
+# tests. Its wheel (and opticalglass's) asks for Qt and Jupyter, which the file readers do
+# not use: they are installed without their declared dependencies (the `peers` extra above
+# has what the readers import).
+.venv/bin/python -m pip install -q --no-deps rayoptics==0.9.8 opticalglass==1.1.1
 echo "lfsim setup: done ($(.venv/bin/lfsim --version))"
