@@ -68,28 +68,27 @@ def _statements(text: str):
                 yield start, toks
 
 
-def _cut_comment(line: str) -> str:
+def _unquoted(text: str):
+    """``(index, char)`` of every character of ``text`` outside '…' and "…" quotes."""
     quote = None
-    for k, ch in enumerate(line):
-        if quote:
-            if ch == quote:
-                quote = None
-        elif ch in "'\"":
-            quote = ch
-        elif ch == "!":
-            return line[:k]
-    return line
-
-
-def _split_semicolons(text: str):
-    quote, start = None, 0
     for k, ch in enumerate(text):
         if quote:
             if ch == quote:
                 quote = None
         elif ch in "'\"":
             quote = ch
-        elif ch == ";":
+        else:
+            yield k, ch
+
+
+def _cut_comment(line: str) -> str:
+    return next((line[:k] for k, ch in _unquoted(line) if ch == "!"), line)
+
+
+def _split_semicolons(text: str):
+    start = 0
+    for k, ch in _unquoted(text):
+        if ch == ";":
             yield text[start:k]
             start = k + 1
     yield text[start:]
