@@ -296,9 +296,9 @@ def test_rayoptics_agrees(name, at, efl):
 
 
 def test_rayoptics_difference_explained_by_glass_data():
-    """HoO-V2C18Ex27 uses SCHOTT glasses whose rayoptics data (opticalglass's catalog) differ
-    from the refractiveindex.info data lfsim ships: the indices differ by ~1e-5, and so do EFL
-    and rays, by the amount that index change gives."""
+    """HoO-V2C18Ex27 uses model glasses (GLAS ___BLANK nd vd), whose dispersion rayoptics and
+    lfsim build from nd and vd by different formulas: the indices differ by more than 1e-7, and
+    so do EFL and rays, by the amount that index change gives."""
     path = DATA / "HoO-V2C18Ex27.zmx"
     om = _ro_model(path)
     sm = om["seq_model"]
@@ -319,3 +319,42 @@ def test_optiland_agrees_on_efl():
     d = Design.from_dict(import_lens(path).raw, str(path))
     fo = d.first_order(method="paraxial")
     assert abs(float(op.paraxial.f2()) - fo.efl) <= 1e-9
+
+
+@pytest.mark.parametrize("name,cut", [("US00583336-2-scaled.zmx", 2900), ("US00583336-2-scaled.zmx", 4500),
+                                      ("ag_dblgauss.seq", 700)])
+def test_a_file_cut_short_is_refused(name, cut, tmp_path, capsys):
+    """A file cut inside a line (here inside a number: 1.137268281587626600E-001 read as
+    1.1372682815876 would import silently) is refused with its last line, and nothing written."""
+    src = tmp_path / name
+    src.write_bytes((DATA / name).read_bytes()[:cut])
+    assert not src.read_bytes().endswith(b"\n")
+    out = tmp_path / "cut.toml"
+    assert main(["import", str(src), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "line" in err[0] and "cut short" in err[0] and name in err[0]
+    assert not out.exists()
+
+
+def test_zemax_export_spells_glasses_as_zemax_catalogs(tmp_path):
+    """CODE V-style names (NSSK2_SCHOTT) go out as the catalog's own (N-SSK2, GCAT SCHOTT),
+    and come back as the same glass."""
+    d = Design.from_dict(import_lens(DATA / "ag_dblgauss.seq").raw, "ag_dblgauss")
+    text, _ = export_text(d, "zmx")
+    glas = [ln.split()[1] for ln in text.splitlines() if ln.strip().startswith("GLAS") and "___BLANK" not in ln]
+    assert "N-SSK2" in glas and not any("_" in g for g in glas), glas
+    assert any(ln.startswith("GCAT") and "SCHOTT" in ln for ln in text.splitlines())
+    back = _roundtrip(d, "zmx", tmp_path)
+    lam = 587.5618
+    n_back = [s.material.index(lam) for s in back.surfaces]
+    assert np.allclose(n_back, [s.material.index(lam) for s in d.surfaces][:len(n_back)], rtol=1e-14, atol=0)
+
+
+def test_a_virtual_surface_is_refused_on_export(tmp_path):
+    text = (SCENES / "cooke_triplet.toml").read_text()
+    text = text.replace('name = "L1_front"', 'name = "L1_front"\nvirtual = true', 1)
+    p = tmp_path / "virtual.toml"
+    p.write_text(text)
+    for fmt in ("zmx", "seq"):
+        with pytest.raises(ValueError, match="virtual"):
+            export_text(load(p), fmt)

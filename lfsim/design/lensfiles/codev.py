@@ -30,6 +30,7 @@ from .common import (
     INFINITE_DISTANCE,
     Imported,
     LensFileError,
+    check_complete,
     finite,
     fmt,
     material_value,
@@ -152,6 +153,7 @@ def read_seq(path: str | Path, text: str | None = None) -> Imported:
             raise LensFileError(file, None, f"cannot read file ({e.strerror or e})") from None
     if "\x00" in text:
         raise LensFileError(file, None, "not a CODE V sequence file (binary data)")
+    check_complete(text, file)
     radius_mode = True
     title = ""
     epd = fno = nao = None

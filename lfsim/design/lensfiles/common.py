@@ -26,6 +26,14 @@ class LensFileError(DesignError):
         self.line = line
 
 
+def check_complete(text: str, file: str) -> None:
+    """Refuse a file cut short: lens programs end every line, the last one too, so text that
+    stops inside a line (a copy or download cut off mid-number) is not read."""
+    if text and not text.endswith(("\n", "\r")):
+        raise LensFileError(file, text.count("\n") + 1, "the file ends inside this line (cut short?): "
+                            "lens files end with a line break")
+
+
 # ------------------------------------------------------------------ the model
 @dataclass
 class Entry:

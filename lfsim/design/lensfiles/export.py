@@ -95,6 +95,9 @@ def plan(design, lenslet: tuple[int, int] | None = None) -> Plan:
     notes: list[str] = []
     last = len(system.surfaces) - 1
     for i, s in enumerate(system.surfaces):
+        if getattr(s, "virtual", False):
+            raise ValueError(f"{design.path}: surfaces[{i}] ({s.name}) is virtual (rays may meet it behind "
+                             "their start): neither lens-file format has that; export the design without it")
         if s.interaction == "break":
             continue
         G_R, G_o = frames[i]

@@ -26,7 +26,7 @@ import math
 from pathlib import Path
 
 from .codev import _XY_OF_J, xy_index
-from .common import INFINITE_DISTANCE, Imported, LensFileError, finite, fmt, material_value
+from .common import INFINITE_DISTANCE, Imported, LensFileError, check_complete, finite, fmt, material_value
 
 #: Zemax (tilt x, tilt y, tilt z) → lfsim tilt factors.
 TILT_SIGN = (-1.0, -1.0, 1.0)
@@ -85,6 +85,7 @@ def read_zmx(path: str | Path, data: bytes | None = None) -> Imported:
         except OSError as e:
             raise LensFileError(file, None, f"cannot read file ({e.strerror or e})") from None
     text = decode(data, file)
+    check_complete(text, file)
     surfs: list[_Surf] = []
     cur: _Surf | None = None
     title = ""
@@ -409,12 +410,31 @@ def _glass(file, line, g, gcat):
 
 
 # --------------------------------------------------------------------- writer
+def zemax_glass(name: str) -> tuple[str, str | None]:
+    """A glass name as a Zemax catalog spells it, and its vendor: ``NSSK2_SCHOTT`` →
+    ``("N-SSK2", "SCHOTT")``; a name of lfsim's built-in table, or one no vendor catalog
+    holds, as is (the built-in glasses are read back first by that name)."""
+    from ...optics.glass_catalogs import resolve, split_vendor
+    from ...optics.materials import catalog
+
+    if name.strip().upper() in catalog():
+        return name.strip(), None
+    try:
+        hit = resolve(name)
+    except ValueError:
+        hit = None
+    if hit is None:
+        return split_vendor(name)[0], split_vendor(name)[1]
+    vendor = split_vendor(hit[0])[1] or hit[1][1].split("-")[0].upper()
+    return hit[1][2], vendor
+
+
 def _glass_line(g) -> str:
     if isinstance(g, dict):
         if "n" in g:
             return f"GLAS ___BLANK 1 0 {fmt(g['n'])} 0 0 0 0 0 0 0"
         return f"GLAS ___BLANK 1 0 {fmt(g['nd'])} {fmt(g['vd'])} 0 0 0 0 0 0"
-    return f"GLAS {g} 0 0 0 0 0 0 0 0 0 0"
+    return f"GLAS {zemax_glass(g)[0]} 0 0 0 0 0 0 0 0 0 0"
 
 
 def write_zmx(plan, title: str) -> str:
@@ -427,11 +447,11 @@ def write_zmx(plan, title: str) -> str:
     else:
         L.append(f"OBNA {fmt(sysd.aperture_value)} 0")
     vendors = []
-    from ...optics.glass_catalogs import VENDORS, split_vendor
+    from ...optics.glass_catalogs import VENDORS
 
     for e in plan.entries:
         if isinstance(e.glass, str):
-            v = split_vendor(e.glass)[1]
+            v = zemax_glass(e.glass)[1]
             if v and v not in vendors:
                 vendors.append(v)
     L.append("GCAT " + " ".join(vendors or list(VENDORS[:3])))
