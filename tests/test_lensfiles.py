@@ -358,3 +358,78 @@ def test_a_virtual_surface_is_refused_on_export(tmp_path):
     for fmt in ("zmx", "seq"):
         with pytest.raises(ValueError, match="virtual"):
             export_text(load(p), fmt)
+
+
+def _inch_pair(fmt: str) -> tuple[str, str]:
+    """One lens written in millimetres and in inches (every length / 25.4, curvatures and
+    A4 / A6 by the matching powers of 25.4)."""
+    s = 25.4
+    if fmt == "seq":
+        def text(u, k):
+            return f"""DIM {u}
+SO 0.0 1e11
+S {40.0 / k!r} {6.0 / k!r} NBK7_SCHOTT
+  ASP
+  K -0.5
+  A {2e-6 * k ** 3!r}
+  B {-3e-9 * k ** 5!r}
+  CIR {12.0 / k!r}
+  YDE {0.3 / k!r}
+S {-60.0 / k!r} {30.0 / k!r}
+SI 0.0 0.0
+EPD {10.0 / k!r}
+WL 587.56
+GO
+"""
+        return text("M", 1.0), text("I", s)
+
+    def ztext(u, k):
+        return f"""MODE SEQ
+UNIT {u} X W X CM MR CPMM
+ENPD {10.0 / k!r}
+SURF 0
+  TYPE STANDARD
+  DISZ INFINITY
+SURF 1
+  TYPE EVENASPH
+  CURV {k / 40.0!r}
+  CONI -0.5
+  PARM 2 {2e-6 * k ** 3!r}
+  PARM 3 {-3e-9 * k ** 5!r}
+  DISZ {6.0 / k!r}
+  GLAS N-BK7 0 0 0 0 0 0 0 0 0 0
+SURF 2
+  TYPE XYPOLYNOM
+  CURV {-k / 60.0!r}
+  XDAT 1 4
+  XDAT 2 {10.0 / k!r}
+  XDAT 5 {0.05 / k!r}
+  XDAT 7 {-0.02 / k!r}
+  DISZ {30.0 / k!r}
+SURF 3
+  TYPE STANDARD
+  DISZ 0
+"""
+    return ztext("MM", 1.0), ztext("IN", s)
+
+
+@pytest.mark.parametrize("fmt", ["seq", "zmx"])
+def test_a_lens_in_inches_reads_as_the_same_lens_in_mm(fmt, tmp_path):
+    """DIM I / UNIT IN: every length of the file is scaled to millimetres (even-asphere and
+    XY terms by their powers of the length), so the lens traces as its millimetre twin."""
+    mm, inch = _inch_pair(fmt)
+    designs = []
+    for name, text in (("mm", mm), ("in", inch)):
+        p = tmp_path / f"{name}.{fmt}"
+        p.write_text(text)
+        imp = import_lens(p)
+        assert (name == "mm") == (not any("millimetres" in n for n in imp.notes))
+        designs.append(Design.from_dict(imp.raw, str(p)))
+    a, b = designs
+    o, v = _rays(10.0, 3.0)
+    ra, rb = a.trace(o, v, 587.56), b.trace(o, v, 587.56)
+    ok = ra.status == 0
+    assert ok.sum() > 10 and np.array_equal(ok, rb.status == 0)
+    assert np.abs(ra.positions[ok] - rb.positions[ok]).max() <= 1e-11
+    assert np.abs(ra.directions[ok] - rb.directions[ok]).max() <= 1e-13
+    assert math.isclose(a.first_order().efl, b.first_order().efl, rel_tol=1e-12)

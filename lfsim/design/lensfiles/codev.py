@@ -28,12 +28,14 @@ from pathlib import Path
 
 from .common import (
     INFINITE_DISTANCE,
+    UNITS_MM,
     Imported,
     LensFileError,
     check_complete,
     finite,
     fmt,
     material_value,
+    scale_lengths,
 )
 
 #: CODE V (α, β, γ) → lfsim tilt factors.
@@ -155,6 +157,7 @@ def read_seq(path: str | Path, text: str | None = None) -> Imported:
         raise LensFileError(file, None, "not a CODE V sequence file (binary data)")
     check_complete(text, file)
     radius_mode = True
+    unit = "M"
     title = ""
     epd = fno = nao = None
     yan, xan, yob, xob = [], [], [], []
@@ -202,8 +205,9 @@ def read_seq(path: str | Path, text: str | None = None) -> Imported:
         elif cmd in ("TIT", "TITLE"):
             title = " ".join(a.strip("'\"") for a in args)
         elif cmd == "DIM":
-            if not args or args[0].upper() not in ("M", "MM"):
-                raise LensFileError(file, line, f"DIM {' '.join(args)}: only millimetres (DIM M) are supported")
+            if not args or args[0].upper() not in ("M", "MM", "C", "CM", "I", "IN"):
+                raise LensFileError(file, line, f"DIM {' '.join(args)}: expected M (mm), C (cm) or I (inches)")
+            unit = args[0].upper()
         elif cmd == "WL":
             wl = [num(line, a, "WL") for a in args]
         elif cmd == "REF":
@@ -356,7 +360,9 @@ def read_seq(path: str | Path, text: str | None = None) -> Imported:
             sysd["primary_wavelength_nm"] = wl[ref - 1]
     raw["system"] = sysd
     raw = {k: raw[k] for k in ("name", "description", "system", "object", "surfaces")}
-    return Imported(raw, notes)
+    if UNITS_MM[unit] != 1.0:
+        notes.append(f"lengths converted from DIM {unit} to millimetres (x {UNITS_MM[unit]:g})")
+    return Imported(scale_lengths(raw, UNITS_MM[unit]), notes)
 
 
 def _is_number(tok: str) -> bool:

@@ -34,6 +34,54 @@ def check_complete(text: str, file: str) -> None:
                             "lens files end with a line break")
 
 
+#: Length units of CODE V's DIM and Zemax's UNIT, in millimetres.
+UNITS_MM = {"MM": 1.0, "M": 1.0, "CM": 10.0, "C": 10.0, "IN": 25.4, "I": 25.4, "METER": 1000.0, "METERS": 1000.0}
+
+
+def scale_lengths(raw: dict, s: float) -> dict:
+    """A design table read in a length unit of ``s`` mm, in millimetres: radii, thicknesses,
+    placements, apertures, the EPD and height fields times ``s``; curvatures over ``s``;
+    normalized XY terms (sags) times ``s``; even-asphere ``A2i`` times ``s**(1 - 2i)``."""
+    if s == 1.0:
+        return raw
+
+    def vec(v):
+        return [x * s for x in v]
+
+    obj = raw.get("object", {})
+    if "distance" in obj:
+        obj["distance"] = obj["distance"] * s
+    sysd = raw.get("system", {})
+    ap = sysd.get("aperture")
+    if ap and ap.get("type") == "epd":
+        ap["value"] = ap["value"] * s
+    fld = sysd.get("field")
+    if fld and fld.get("type") == "height":
+        fld["values"] = vec(fld["values"])
+    for t in raw.get("surfaces", []):
+        for k in ("radius", "thickness", "semi_diameter", "norm_radius", "focal_length"):
+            if k in t:
+                t[k] = t[k] * s
+        if "curvature" in t:
+            t["curvature"] = t["curvature"] / s
+        for k in ("decenter", "global_position"):
+            if k in t:
+                t[k] = vec(t[k])
+        for k in list(t.get("xy", {})):
+            t["xy"][k] = t["xy"][k] * s
+        for k in list(t.get("asphere", {})):
+            t["asphere"][k] = t["asphere"][k] * s ** (1 - int(k[1:]))
+        a = t.get("aperture")
+        if a:
+            for k in ("radius",):
+                if k in a:
+                    a[k] = a[k] * s
+            for k in ("half_width", "decenter"):
+                if k in a:
+                    a[k] = vec(a[k])
+    return raw
+
+
 # ------------------------------------------------------------------ the model
 @dataclass
 class Entry:

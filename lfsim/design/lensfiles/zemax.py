@@ -26,7 +26,17 @@ import math
 from pathlib import Path
 
 from .codev import _XY_OF_J, xy_index
-from .common import INFINITE_DISTANCE, Imported, LensFileError, check_complete, finite, fmt, material_value
+from .common import (
+    INFINITE_DISTANCE,
+    UNITS_MM,
+    Imported,
+    LensFileError,
+    check_complete,
+    finite,
+    fmt,
+    material_value,
+    scale_lengths,
+)
 
 #: Zemax (tilt x, tilt y, tilt z) → lfsim tilt factors.
 TILT_SIGN = (-1.0, -1.0, 1.0)
@@ -89,6 +99,7 @@ def read_zmx(path: str | Path, data: bytes | None = None) -> Imported:
     surfs: list[_Surf] = []
     cur: _Surf | None = None
     title = ""
+    unit = "MM"
     aperture = None
     gcat: list[str] = []
     ftyp = None
@@ -131,8 +142,9 @@ def read_zmx(path: str | Path, data: bytes | None = None) -> Imported:
             title = rest.strip('"')
             continue
         if key == "UNIT":
-            if not args or args[0].upper() != "MM":
-                raise LensFileError(file, ln, f"UNIT {arg(0, 'a unit')}: only millimetres (UNIT MM) are supported")
+            if not args or args[0].upper() not in ("MM", "CM", "IN", "METER"):
+                raise LensFileError(file, ln, f"UNIT {arg(0, 'a unit')}: expected MM, CM, IN or METER")
+            unit = args[0].upper()
             continue
         if key in ("ENPD", "FNUM", "OBNA"):
             v = num(ln, arg(0, "a value"), key)
@@ -270,7 +282,9 @@ def read_zmx(path: str | Path, data: bytes | None = None) -> Imported:
             sysd["wavelengths_nm"].append(prim)
     raw["system"] = sysd
     raw = {k: raw[k] for k in ("name", "description", "system", "object", "surfaces")}
-    return Imported(raw, notes)
+    if UNITS_MM[unit] != 1.0:
+        notes.append(f"lengths converted from UNIT {unit} to millimetres (x {UNITS_MM[unit]:g})")
+    return Imported(scale_lengths(raw, UNITS_MM[unit]), notes)
 
 
 def _assemble(file, surfs: list[_Surf], gcat, notes) -> dict:
