@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import math
 import sys
 
@@ -162,9 +163,12 @@ def cmd_import(args) -> int:
         raise InputError(f"--out = {args.out!r}: the design file must end in .toml")
     check_writable(args.out, "--out")
     imp = write_imported(args.file, args.out)
+    n = len(imp.raw["surfaces"])
+    if args.json:
+        print(json.dumps({"file": args.file, "design": args.out, "surfaces": n, "notes": imp.notes}, indent=2))
+        return 0
     for note in imp.notes:
         print(f"lfsim import: note: {note}", file=sys.stderr)
-    n = len(imp.raw["surfaces"])
     print(f"{Path(args.file).name}: {n} surfaces -> {args.out}")
     return 0
 
@@ -206,7 +210,9 @@ def register(sub) -> None:
 
     im = sub.add_parser("import", help="read a CODE V .seq or Zemax .zmx lens file into a design file")
     im.add_argument("file", help="FILE.seq (CODE V) or FILE.zmx (Zemax, UTF-16 or UTF-8)")
-    im.add_argument("--out", required=True, help="the design file to write (.toml, atomically)")
+    im.add_argument("--out", required=True, help="the design file to write (.toml, atomically; an existing "
+                    "file is replaced, missing folders are made); bad input: one line, exit 2, nothing written")
+    im.add_argument("--json", action="store_true", help="print the file, design, surface count and notes as JSON")
     im.set_defaults(func=cmd_import)
 
     lay = sub.add_parser("layout", help="layout and spot-diagram pictures plus a summary")

@@ -115,11 +115,16 @@ def _export_lens(args) -> int:
         _writable(path, flag)
     design = _load_design(args)
     texts = [(flag, path, *export_text(design, fmt, lenslet)) for flag, path, fmt in outs]  # all, then write
-    for _flag, path, text, notes in texts:
+    doc = {"design": args.design, "lenslet": list(lenslet) if lenslet else None, "files": []}
+    for flag, path, text, notes in texts:
         write_text(path, text)
-        for note in notes:
-            print(f"lfsim export: note: {note}", file=sys.stderr)
-        print(f"{args.design} -> {path}")
+        doc["files"].append({"format": flag[2:], "path": path, "notes": list(notes)})
+        if not args.json:
+            for note in notes:
+                print(f"lfsim export: note: {note}", file=sys.stderr)
+            print(f"{args.design} -> {path}")
+    if args.json:
+        print(_dump(doc))
     return 0
 
 

@@ -68,11 +68,13 @@ def export_text(design, fmt: str, lenslet: tuple[int, int] | None = None) -> tup
     title = design.name or Path(design.path or "design").stem
     if lenslet is not None:
         title += f" (lenslet {lenslet[0]},{lenslet[1]})"
-    if fmt == "zmx":
-        return write_zmx(pl, title), pl.notes
-    if fmt == "seq":
-        return write_seq(pl, title), pl.notes
-    raise ValueError(f"unknown lens-file format {fmt!r}: zmx or seq")
+    writers = {"zmx": write_zmx, "seq": write_seq}
+    if fmt not in writers:
+        raise ValueError(f"unknown lens-file format {fmt!r}: zmx or seq")
+    try:
+        return writers[fmt](pl, title), pl.notes
+    except ValueError as e:  # what the format cannot hold, said of this design file
+        raise ValueError(f"{design.path or title}: {e}") from None
 
 
 def write_export(design, out: str | Path, fmt: str, lenslet: tuple[int, int] | None = None) -> list[str]:

@@ -35,6 +35,7 @@ from .common import (
     finite,
     fmt,
     material_value,
+    note_defaults,
     scale_lengths,
 )
 
@@ -359,6 +360,7 @@ def read_seq(path: str | Path, text: str | None = None) -> Imported:
                 raise LensFileError(file, None, f"REF {ref}: there are {len(wl)} wavelengths")
             sysd["primary_wavelength_nm"] = wl[ref - 1]
     raw["system"] = sysd
+    note_defaults(sysd, notes, "EPD, FNO or NAO", "WL")
     raw = {k: raw[k] for k in ("name", "description", "system", "object", "surfaces")}
     if UNITS_MM[unit] != 1.0:
         notes.append(f"lengths converted from DIM {unit} to millimetres (x {UNITS_MM[unit]:g})")
@@ -528,7 +530,7 @@ def write_seq(plan, title: str) -> str:
     key = "YAN" if sysd.field_type == "angle" else "YOB"
     lines.append(f"{key} " + " ".join(fmt(f) for f in sysd.fields))
     obj_d = sysd.object_distance
-    so = f"SO 0.0 {'1e10' if math.isinf(obj_d) else fmt(obj_d)}"
+    so = f"SO 0.0 {'1e11' if math.isinf(obj_d) else fmt(obj_d)}"
     if plan.object_glass is not None:
         so += f" {_glass_token(plan.object_glass, wl)}"
     lines.append(so)
@@ -547,7 +549,8 @@ def _glass_token(g, wavelengths=(587.5618,)) -> str:
     glass as nd:vd."""
     if isinstance(g, dict):
         if "n" in g or set(g) != {"nd", "vd"}:
-            raise ValueError(f"medium {g!r}: a constant index has no CODE V glass form; give the design "
+            what = f"n = {fmt(g['n'])}" if "n" in g else ", ".join(f"{k} = {v}" for k, v in g.items())
+            raise ValueError(f"a constant-index medium ({what}) has no CODE V glass form; give the design "
                              "{nd, vd} or a catalog glass, or export with --zmx")
         return f"{fmt(g['nd'])}:{fmt(g['vd'])}"
     name = str(g)

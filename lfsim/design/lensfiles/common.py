@@ -34,6 +34,15 @@ def check_complete(text: str, file: str) -> None:
                             "lens files end with a line break")
 
 
+def note_defaults(sysd: dict, notes: list[str], aperture_words: str, wavelength_words: str) -> None:
+    """Say which system data the file lacked, so that a defaulted design is not taken as read."""
+    if "aperture" not in sysd:
+        notes.append(f"no {aperture_words}: the aperture is lfsim's default, an entrance pupil of 0 mm "
+                     "(set [system] aperture before tracing ray bundles)")
+    if not sysd.get("wavelengths_nm"):
+        notes.append(f"no {wavelength_words}: the wavelength is lfsim's default, 587.5618 nm")
+
+
 #: Length units of CODE V's DIM and Zemax's UNIT, in millimetres.
 UNITS_MM = {"MM": 1.0, "M": 1.0, "CM": 10.0, "C": 10.0, "IN": 25.4, "I": 25.4, "METER": 1000.0, "METERS": 1000.0}
 

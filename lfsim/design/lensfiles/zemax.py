@@ -35,6 +35,7 @@ from .common import (
     finite,
     fmt,
     material_value,
+    note_defaults,
     scale_lengths,
 )
 
@@ -281,6 +282,7 @@ def read_zmx(path: str | Path, data: bytes | None = None) -> Imported:
         if prim not in sysd["wavelengths_nm"]:
             sysd["wavelengths_nm"].append(prim)
     raw["system"] = sysd
+    note_defaults(sysd, notes, "ENPD, FNUM or OBNA", "WAVM or WAVL")
     raw = {k: raw[k] for k in ("name", "description", "system", "object", "surfaces")}
     if UNITS_MM[unit] != 1.0:
         notes.append(f"lengths converted from UNIT {unit} to millimetres (x {UNITS_MM[unit]:g})")
