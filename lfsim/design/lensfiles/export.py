@@ -93,6 +93,12 @@ def plan(design, lenslet: tuple[int, int] | None = None) -> Plan:
     E_R, E_o = np.eye(3), np.zeros(3)  # where the written chain stands (after the pending thickness)
     entries: list[Out] = []
     notes: list[str] = []
+    ini = getattr(design, "ini", None)
+    if ini is not None and ini.tunable is not None:
+        s_t = system.surfaces[ini.tunable]
+        power = f" ({1000.0 * s_t.power:.6g} D)" if s_t.interaction == "paraxial" else ""
+        notes.append(f"the tunable lens is written at the design file's own setting{power}; each CDP state "
+                     "has its own power (lfsim ini DESIGN lists them)")
     last = len(system.surfaces) - 1
     for i, s in enumerate(system.surfaces):
         if getattr(s, "virtual", False):
