@@ -433,3 +433,16 @@ def test_a_lens_in_inches_reads_as_the_same_lens_in_mm(fmt, tmp_path):
     assert np.abs(ra.positions[ok] - rb.positions[ok]).max() <= 1e-11
     assert np.abs(ra.directions[ok] - rb.directions[ok]).max() <= 1e-13
     assert math.isclose(a.first_order().efl, b.first_order().efl, rel_tol=1e-12)
+
+
+def test_rectangular_decentred_clear_aperture():
+    imp = import_lens_text("SO 0 1e11\nS 0 1 NBK7_SCHOTT\n  REX 3\n  REY 2\n  ADX 0.5\n  ADY -0.25\nS 0 5\nSI 0 0\n"
+                           "EPD 2\nGO\n")
+    assert imp.raw["surfaces"][0]["aperture"] == {"type": "rectangular", "half_width": [3.0, 2.0],
+                                                  "decenter": [0.5, -0.25]}
+
+
+def import_lens_text(text: str):
+    from lfsim.design.lensfiles.codev import read_seq
+
+    return read_seq("inline.seq", text=text)

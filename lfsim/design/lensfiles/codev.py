@@ -305,20 +305,10 @@ def read_seq(path: str | Path, text: str | None = None) -> Imported:
                 raise LensFileError(file, line, f"CIR {' '.join(quals)}: only clear apertures are supported "
                                     "(no holes or obscurations)")
             s.cir = num(line, vals[0] if vals else need(line, toks, 1, "a radius"), "CIR")
-        elif cmd in ("REX", "REY"):
+        elif cmd in ("REX", "REY", "ADX", "ADY"):  # rectangle half-widths, aperture offsets
             s = surface_only()
-            v = num(line, need(line, toks, 1, "a half-width"), cmd)
-            if cmd == "REX":
-                s.rex = v
-            else:
-                s.rey = v
-        elif cmd in ("ADX", "ADY"):
-            s = surface_only()
-            v = num(line, need(line, toks, 1, "an offset"), cmd)
-            if cmd == "ADX":
-                s.adx = v
-            else:
-                s.ady = v
+            what = "a half-width" if cmd.startswith("RE") else "an offset"
+            setattr(s, cmd.lower(), num(line, need(line, toks, 1, what), cmd))
         elif cmd == "ARO":
             if num(line, need(line, toks, 1, "an angle"), "ARO") != 0.0:
                 raise LensFileError(file, line, "ARO (a rotated aperture) is not supported")
