@@ -104,6 +104,7 @@ def read_zmx(path: str | Path, data: bytes | None = None) -> Imported:
     aperture = None
     gcat: list[str] = []
     ftyp = None
+    ftyp_line = None
     xfln, yfln = [], []
     wavm: dict[int, tuple[float, float]] = {}
     wavl: list[float] = []
@@ -159,6 +160,7 @@ def read_zmx(path: str | Path, data: bytes | None = None) -> Imported:
             continue
         if key == "FTYP":
             ftyp = [int(num(ln, a, "FTYP")) for a in args]
+            ftyp_line = ln
             continue
         if key in ("XFLN", "YFLN", "XFLD", "YFLD"):
             vals = [num(ln, a, key) for a in args]
@@ -259,7 +261,7 @@ def read_zmx(path: str | Path, data: bytes | None = None) -> Imported:
     ftype = ftyp[0] if ftyp else 0
     at_inf = math.isinf(raw["object"]["distance"])
     if any(v != 0 for v in ys) and ftype not in (0, 1):
-        raise LensFileError(file, None, f"FTYP {ftype}: field type not supported (0 angle, 1 object height)")
+        raise LensFileError(file, ftyp_line, f"FTYP {ftype}: field type not supported (0 angle, 1 object height)")
     if ftype == 1 and not at_inf:
         sysd["field"] = {"type": "height", "values": list(dict.fromkeys(ys))}
     else:
