@@ -446,3 +446,16 @@ def import_lens_text(text: str):
     from lfsim.design.lensfiles.codev import read_seq
 
     return read_seq("inline.seq", text=text)
+
+
+def test_field_rays_start_before_a_first_surface_that_bulges_toward_the_object():
+    """mangin.seq's first surface (R −1200 mm, 200 mm pupil) lies 4.17 mm before its vertex at
+    the rim: the rays of layout and spot plots start before it, so none is stopped as behind."""
+    from lfsim.optics.sampling import field_rays, pupil_grid
+
+    d = Design.from_dict(import_lens(DATA / "mangin.seq").raw, "mangin")
+    fo = d.first_order()
+    for f in (0.0, 0.333):
+        o, v = field_rays(d.system, fo, f, pupil_grid(7))
+        assert o[:, 2].max() < -4.17 - 0.5
+        assert (d.trace(o, v, 555.0).status == 0).all()

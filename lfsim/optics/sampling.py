@@ -44,14 +44,30 @@ def pupil_grid(n: int, kind: str = "hexapolar") -> np.ndarray:
     raise ValueError(f"unknown pupil sampling {kind!r}: hexapolar, square, fan_y, fan_x")
 
 
+def _least_sag(system: System, ep: np.ndarray, d: np.ndarray) -> float:
+    """The least rotationally symmetric sag (base conic and even asphere) of an untilted,
+    undecentred first surface at the heights where the rays through ``ep`` along ``d`` cross
+    its vertex plane (0 for any other first surface)."""
+    s = system.surfaces[0]
+    if any(s.tilt) or any(s.decenter) or s.global_position is not None:
+        return 0.0
+    t = -ep[:, 2] / d[:, 2]
+    r2 = (ep[:, 0] + t * d[:, 0]) ** 2 + (ep[:, 1] + t * d[:, 1]) ** 2
+    c, k = s.curvature, s.conic
+    arg = np.maximum(1.0 - (1.0 + k) * c * c * r2, 0.0)
+    z = c * r2 / (1.0 + np.sqrt(arg)) + sum(a * r2 ** (o // 2) for o, a in s.asphere.items())
+    return float(min(np.min(z), 0.0))
+
+
 def field_rays(system: System, fo: FirstOrder, field: float, pupil: np.ndarray,
                start_z: float | None = None):
     """Origins and directions (global) of rays of one field through pupil points.
 
     ``field`` is an angle (deg) or an object height (mm) per the system's
     field type. Origins lie on the plane ``start_z`` (default: 1 mm before
-    the first vertex or the entrance pupil, whichever is earlier; or at the
-    object for a finite object).
+    the first vertex, the entrance pupil or the first surface where these
+    rays cross it (a surface bulging toward the object), whichever is
+    earliest; or at the object for a finite object).
     """
     a = 0.5 * fo.entrance_pupil_diameter
     z_ep = fo.entrance_pupil_position
@@ -59,7 +75,7 @@ def field_rays(system: System, fo: FirstOrder, field: float, pupil: np.ndarray,
     if math.isinf(system.object_distance):
         th = math.radians(field)
         d = np.tile([0.0, math.sin(th), math.cos(th)], (len(pupil), 1))
-        z0 = min(0.0, z_ep) - 1.0 if start_z is None else start_z
+        z0 = min(0.0, z_ep, _least_sag(system, ep, d)) - 1.0 if start_z is None else start_z
         t = (z0 - ep[:, 2]) / d[:, 2]
         o = ep + t[:, None] * d
     else:
