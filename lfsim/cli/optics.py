@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import math
 import sys
 
@@ -165,7 +164,7 @@ def cmd_import(args) -> int:
     imp = write_imported(args.file, args.out)
     n = len(imp.raw["surfaces"])
     if args.json:
-        print(json.dumps({"file": args.file, "design": args.out, "surfaces": n, "notes": imp.notes}, indent=2))
+        print(_dump({"file": args.file, "design": args.out, "surfaces": n, "notes": imp.notes}))
         return 0
     for note in imp.notes:
         print(f"lfsim import: note: {note}", file=sys.stderr)
