@@ -140,9 +140,10 @@ def _drop_lens_variables(raw: dict, lenses) -> None:
 
 def first_order(path: Path) -> list[dict]:
     """The ``lfsim ini`` states of a design file."""
+    import lfsim
     from lfsim.ini.model import IniModel
 
-    model = IniModel(__import__("lfsim").load(path))
+    model = IniModel(lfsim.load(path))
     return [model.state(k).as_dict() for k in range(len(model.depths))]
 
 

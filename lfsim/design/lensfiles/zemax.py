@@ -442,7 +442,7 @@ def zemax_glass(name: str) -> tuple[str, str | None]:
     except ValueError:
         hit = None
     if hit is None:
-        return split_vendor(name)[0], split_vendor(name)[1]
+        return split_vendor(name)
     vendor = split_vendor(hit[0])[1] or hit[1][1].split("-")[0].upper()
     return hit[1][2], vendor
 
