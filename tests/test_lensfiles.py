@@ -9,6 +9,7 @@ import of the same files.
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +20,7 @@ from lfsim.design import Design, load
 from lfsim.design.lensfiles import export_text, import_lens
 from lfsim.design.lensfiles.codev import xy_index
 from lfsim.design.lensfiles.common import euler_xyz, rot_xyz, surface_frames
+from lfsim.optics.materials import lookup
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "tests" / "data" / "lensfiles"
@@ -48,6 +50,10 @@ def _roundtrip(design: Design, fmt: str, tmp_path: Path, lenslet=None) -> Design
                                              ("freeform_prism", 4.0, (-8.0, 0.0, 8.0))])
 def test_roundtrip_reproduces_every_ray(name, epd, fields, fmt, tmp_path):
     d = load(SCENES / f"{name}.toml")
+    if fmt == "seq" and name == "freeform_prism":  # PMMA has no CODE V name: its model glass instead
+        p = tmp_path / f"{name}.toml"
+        p.write_text((SCENES / f"{name}.toml").read_text().replace('"PMMA"', "{ nd = 1.490618, vd = 53.18 }"))
+        d = load(p)
     back = _roundtrip(d, fmt, tmp_path)
     worst = 0.0
     for f in fields:
@@ -181,6 +187,45 @@ def test_refusals_are_one_line_and_write_nothing(text, what, tmp_path, capsys):
     assert len(err.splitlines()) == 1 and str(p) in err and what in err, err
     assert out.read_text() == "earlier\n"
     assert sorted(q.name for q in tmp_path.iterdir()) == ["bad.seq", "out.toml"]
+
+
+NAO_SEQ = "SO 0 1e11\nS 0.02 5 NBK7_SCHOTT\nS 0 45\nSI 0 0\nNAO 0.1\nWL 587.56\nGO\n"
+OBNA_ZMX = """MODE SEQ
+OBNA 0.1 0
+SURF 0
+  TYPE STANDARD
+  DISZ INFINITY
+SURF 1
+  TYPE STANDARD
+  CURV 0.02
+  DISZ 5
+  GLAS N-BK7 0 0 0 0 0 0 0 0 0 0
+SURF 2
+  TYPE STANDARD
+  DISZ 45
+SURF 3
+  TYPE STANDARD
+  DISZ 0
+"""
+
+
+@pytest.mark.parametrize("name,text,what", [("nao.seq", NAO_SEQ, "line 5: NAO 0.1"),
+                                            ("obna.zmx", OBNA_ZMX, "line 2: OBNA 0.1")])
+def test_an_object_space_na_with_the_object_at_infinity_is_refused(name, text, what, tmp_path, capsys):
+    """CODE V's NAO and Zemax's OBNA give the aperture as an object-space NA, which an object at
+    infinity has none of (it was read as an entrance pupil of 0 mm, without a note): refused in one
+    line, nothing written. With the object at a finite distance the NA is read."""
+    p = tmp_path / name
+    p.write_text(text)
+    out = tmp_path / "out.toml"
+    assert main(["import", str(p), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(p) in err[0] and what in err[0] and "infinity" in err[0], err
+    assert sorted(q.name for q in tmp_path.iterdir()) == [name]
+    p.write_text(text.replace("1e11", "200").replace("INFINITY", "200"))
+    imp = import_lens(p)
+    assert imp.raw["system"]["aperture"] == {"type": "na", "value": 0.1}
+    assert Design.from_dict(imp.raw, str(p)).first_order().entrance_pupil_diameter > 0
 
 
 def test_zemax_unsupported_type_and_utf16(tmp_path, capsys):
@@ -348,6 +393,64 @@ def test_zemax_export_spells_glasses_as_zemax_catalogs(tmp_path):
     lam = 587.5618
     n_back = [s.material.index(lam) for s in back.surfaces]
     assert np.allclose(n_back, [s.material.index(lam) for s in d.surfaces][:len(n_back)], rtol=1e-14, atol=0)
+
+
+def _triplet(glasses, tmp_path: Path) -> Path:
+    """The Cooke triplet with its three lenses of ``glasses``, as a design file."""
+    it = iter(glasses)
+    p = tmp_path / "triplet.toml"
+    p.write_text(re.sub(r'material = "[^"]*"', lambda m: f'material = "{next(it)}"',
+                        (SCENES / "cooke_triplet.toml").read_text()))
+    return p
+
+
+def test_seq_export_names_the_vendor_of_built_in_glasses(tmp_path):
+    """A built-in glass goes out as NAME_VENDOR of the vendor catalog with the same indices
+    (written bare, CODE V and rayoptics take a glass of that name from any catalog: F2 from
+    CDGM's), and comes back as the same glass: the EFL at every wavelength is the design's."""
+    d = load(_triplet(("N-BK7", "F2", "SK16"), tmp_path))
+    text, _ = export_text(d, "seq")
+    glasses = [ln.split()[3] for ln in text.splitlines() if ln.startswith("S ") and len(ln.split()) > 3]
+    assert glasses == ["NBK7_SCHOTT", "F2_SCHOTT", "SK16_HIKARI"]
+    p = tmp_path / "t.seq"
+    p.write_text(text)
+    back = Design.from_dict(import_lens(p).raw, str(p))
+    for lam in d.system.wavelengths_nm:
+        assert math.isclose(back.first_order(lam).efl, d.first_order(lam).efl, rel_tol=1e-12)
+
+
+@pytest.mark.parametrize("glass", ["PMMA", "PC", "E48R", "FUSED_SILICA"])
+def test_seq_export_refuses_a_material_no_vendor_catalog_holds(glass, tmp_path, capsys):
+    """lfsim's plastics and fused silica are in no vendor catalog: a CODE V file has no name that
+    gives their indices (rayoptics reads a bare PMMA as n = 1.5), so the .seq export refuses
+    them in one line naming the surface, and writes nothing."""
+    src = _triplet(("N-BK7", glass, "N-BK7"), tmp_path)
+    out = tmp_path / "t.seq"
+    assert main(["export", str(src), "--seq", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "surface L2_front" in err[0] and repr(glass) in err[0], err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("glasses", [("N-BK7", "F2", "N-SK16"), ("SK16", "F2", "SK16")])
+def test_rayoptics_reads_exported_built_in_glasses(glasses, tmp_path):
+    """rayoptics reads the exported triplet with lfsim's EFL (bare F2 and SK16 it took from CDGM's
+    and Robb 1983's OHARA catalogs: 48.93 mm against 50.02 mm). Its catalogs (opticalglass 1.1.1)
+    lack HIKARI SK16, listing J-SK16 only, and it reads SK16_HIKARI as Robb's SK16 (nd 7.5e-4
+    higher): with lfsim's index given to that glass, it agrees."""
+    d = load(_triplet(glasses, tmp_path))
+    p = tmp_path / "t.seq"
+    p.write_text(export_text(d, "seq")[0])
+    om = _ro_model(p)
+    from opticalglass.opticalmedium import ConstantIndex
+
+    wvl = om["optical_spec"]["wvls"].central_wvl
+    for g in om["seq_model"].gaps:
+        if g.medium.name() == "SK16" and g.medium.catalog_name() != "Hikari":
+            g.medium = ConstantIndex(lookup("SK16").index(wvl), "SK16")
+    om.update_model()
+    efl = om["analysis_results"]["parax_data"].fod.efl
+    assert math.isclose(efl, d.first_order(wvl, method="paraxial").efl, rel_tol=1e-9)
 
 
 def test_a_virtual_surface_is_refused_on_export(tmp_path):

@@ -160,7 +160,7 @@ def read_seq(path: str | Path, text: str | None = None) -> Imported:
     radius_mode = True
     unit = "M"
     title = ""
-    epd = fno = nao = None
+    epd = fno = nao = nao_line = None
     yan, xan, yob, xob = [], [], [], []
     wl, ref = [], None
     surfs: list[_Surf] = []
@@ -218,7 +218,7 @@ def read_seq(path: str | Path, text: str | None = None) -> Imported:
         elif cmd == "FNO":
             fno = num(line, need(line, toks, 1, "an f-number"), "FNO")
         elif cmd == "NAO":
-            nao = num(line, need(line, toks, 1, "an NA"), "NAO")
+            nao, nao_line = num(line, need(line, toks, 1, "an NA"), "NAO"), line
         elif cmd in ("YIM", "XIM", "YRI", "XRI"):
             if any(num(line, a, cmd) != 0.0 for a in args):
                 raise LensFileError(file, line, f"{cmd}: image-height fields are not supported (YAN angles or "
@@ -328,13 +328,16 @@ def read_seq(path: str | Path, text: str | None = None) -> Imported:
     name = title or Path(file).stem
     raw = {"name": name, "description": f"Imported from the CODE V file {Path(file).name}", **raw}
     sysd: dict = {}
+    at_inf = math.isinf(raw["object"]["distance"])
     if fno is not None:
         sysd["aperture"] = {"type": "fno", "value": fno}
     elif nao is not None:
+        if at_inf:
+            raise LensFileError(file, nao_line, f"NAO {nao:g}: an object-space NA needs a finite object, and SO "
+                                "puts the object at infinity (thickness >= 1e10); give EPD or FNO")
         sysd["aperture"] = {"type": "na", "value": nao}
     elif epd is not None:
         sysd["aperture"] = {"type": "epd", "value": epd}
-    at_inf = math.isinf(raw["object"]["distance"])
     if yob and not at_inf:
         fields = {"type": "height", "values": yob}
     else:
@@ -522,7 +525,7 @@ def write_seq(plan, title: str) -> str:
     obj_d = sysd.object_distance
     so = f"SO 0.0 {'1e11' if math.isinf(obj_d) else fmt(obj_d)}"
     if plan.object_glass is not None:
-        so += f" {_glass_token(plan.object_glass, wl)}"
+        so += f" {_glass_token(plan.object_glass, wl, 'the object space')}"
     lines.append(so)
     for e in plan.entries:
         lines += _surface_lines(e, wl)
@@ -534,28 +537,27 @@ def _quote(t: str) -> str:
     return t.replace("'", "")
 
 
-def _glass_token(g, wavelengths=(587.5618,)) -> str:
-    """CODE V's spelling of a medium: NAME_VENDOR where that gives the same indices, a model
-    glass as nd:vd."""
+def _glass_token(g, wavelengths, where: str) -> str:
+    """CODE V's spelling of a medium: NAME_VENDOR of a vendor catalog that gives the same indices
+    at ``wavelengths``, a model glass as nd:vd; ``where`` names the surface in a refusal."""
     if isinstance(g, dict):
         if "n" in g or set(g) != {"nd", "vd"}:
             what = f"n = {fmt(g['n'])}" if "n" in g else ", ".join(f"{k} = {v}" for k, v in g.items())
-            raise ValueError(f"a constant-index medium ({what}) has no CODE V glass form; give the design "
-                             "{nd, vd} or a catalog glass, or export with --zmx")
+            raise ValueError(f"{where}: a constant-index medium ({what}) has no CODE V glass form; give the "
+                             "design {nd, vd} or a catalog glass, or export with --zmx")
         return f"{fmt(g['nd'])}:{fmt(g['vd'])}"
-    name = str(g)
-    if re.fullmatch(r"[A-Za-z0-9_]+", name):
-        return name
     from ...optics.glass_catalogs import VENDORS, split_vendor
     from .export import same_index
 
+    name = str(g)
     base, vendor = split_vendor(name)
     bare = re.sub(r"[^A-Za-z0-9]", "", base).upper()
     for v in ([vendor] if vendor else list(VENDORS)):
         cand = f"{bare}_{v}"
         if same_index(cand, name, wavelengths):
             return cand
-    return "'" + name.replace("'", "") + "'"
+    raise ValueError(f"{where}: material {name!r} is in no vendor catalog, so CODE V has no name for it "
+                     "with the same indices; give the design a vendor catalog glass or a model glass {nd, vd}")
 
 
 def _surface_lines(e, wl) -> list[str]:
@@ -567,7 +569,7 @@ def _surface_lines(e, wl) -> list[str]:
     if e.mirror:
         text += " REFL"
     elif e.glass is not None and not e.image:
-        text += f" {_glass_token(e.glass, wl)}"
+        text += f" {_glass_token(e.glass, wl, f'surface {e.name}')}"
     out = [text]
     if e.stop:
         out.append("  STO")

@@ -150,7 +150,7 @@ def read_zmx(path: str | Path, data: bytes | None = None) -> Imported:
             continue
         if key in ("ENPD", "FNUM", "OBNA"):
             v = num(ln, arg(0, "a value"), key)
-            aperture = {"ENPD": "epd", "FNUM": "fno", "OBNA": "na"}[key], v
+            aperture = {"ENPD": "epd", "FNUM": "fno", "OBNA": "na"}[key], v, ln
             continue
         if key in ("FLOA", "OBNA_", "ISNA"):
             raise LensFileError(file, ln, f"{key}: this system aperture type is not supported (use ENPD, FNUM "
@@ -253,13 +253,17 @@ def read_zmx(path: str | Path, data: bytes | None = None) -> Imported:
     raw = {"name": title or Path(file).stem, "description": f"Imported from the Zemax file {Path(file).name}",
            **raw}
     sysd: dict = {}
+    at_inf = math.isinf(raw["object"]["distance"])
     if aperture:
+        if aperture[0] == "na" and at_inf:
+            raise LensFileError(file, aperture[2], f"OBNA {aperture[1]:g}: an object-space NA needs a finite "
+                                "object, and SURF 0 puts the object at infinity (DISZ INFINITY or >= 1e10); give "
+                                "ENPD or FNUM")
         sysd["aperture"] = {"type": aperture[0], "value": aperture[1]}
     nf = ftyp[2] if ftyp and len(ftyp) > 2 and ftyp[2] > 0 else max(len(yfln), len(xfln), 1)
     ys = (yfln or [0.0])[:nf]
     xs = (xfln or [0.0])[:nf]
     ftype = ftyp[0] if ftyp else 0
-    at_inf = math.isinf(raw["object"]["distance"])
     if any(v != 0 for v in ys) and ftype not in (0, 1):
         raise LensFileError(file, ftyp_line, f"FTYP {ftype}: field type not supported (0 angle, 1 object height)")
     if ftype == 1 and not at_inf:
