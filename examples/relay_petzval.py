@@ -1,0 +1,559 @@
+"""How flat can four singlets make the relay's field, at a design's first order? A paraxial search.
+
+The wearable design's relay (four spherical singlets and a tunable lens between
+the lenslet array's aperture plane ``AA`` and the prism) bends its field: its
+Petzval sum, Σ c·(n′ − n)/(n·n′) over the singlets' faces, is what the prism
+has to live with. This script asks how small that sum can be made while the
+relay keeps **exactly the same first order**, so that the InI first-order
+model (CDP at each state, EI pitch, angular pixel, FOV) is unchanged:
+
+* the y–ν matrix ``M`` from the plane of ``AA`` to a reference plane behind
+  the relay equals the design's at the 1 D state, and its derivative in the
+  tunable lens's power has the same direction, ``dM/dφ = dM₀/dφ · (1/k)``; the
+  tunable lens's powers then map one to one (``φ − φ₁ = k·(φ₀ − φ₀₁)``) and
+  must stay inside its range at every CDP state;
+* everything behind the relay (the prism, the viewing window) moves along the
+  axis with the relay's end, so the track changes by the relay's change of
+  length.
+
+Each singlet has two curvatures, a centre thickness and a glass from
+``--glasses``; the six air gaps are free. The rules are those of the package
+(all lengths in mm):
+
+* every face's paraxial footprint of the design's own ray bundle (the real rays
+  of ``lfsim.ini.package.ray_set`` at ``AA``: corner, edge and centre lenslets,
+  EI corners, edges and centres, chief and marginal rays, every CDP state)
+  within ``--clear-diameter``/2, and the tunable lens's within the design's own
+  (paraxial) footprint there, which fits its 10 mm aperture;
+* surface slope ``|c|·h ≤ --max-slope`` at the lens's semi-diameter ``h``
+  (the footprint plus ``--margin``);
+* glass at least ``--min-glass`` thick at the centre and the edge; air gaps at
+  least ``--min-air`` at the centre and the edge; ``--min-back`` from the last
+  face to the reference plane (room for the prism's entrance);
+* the relay's length ≤ the design's + (``track`` limit − the design's track).
+
+The search (SLSQP from the design's own relay and from random starts, for each
+assignment of glasses) returns the least Petzval sum per track limit (and per
+clear diameter). It is paraxial: it says what the first order and the parts
+allow, not what the optimizer will make of it. ``--write DIR`` writes the best
+relay of each limit as a design file (the original with the relay swapped, the
+prism moved), ready for ``lfsim optimize`` and ``examples/relay_variants.py``'s
+comparison. Run::
+
+    python examples/relay_petzval.py --out DIR [--track-limits 150,175,200,250]
+
+It prints a table and writes ``relay_petzval.json`` and ``relay_petzval.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import itertools
+import json
+import math
+import sys
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import tomli_w
+from scipy.optimize import minimize
+
+from lfsim.optics.materials import lookup
+
+ROOT = Path(__file__).resolve().parents[1]
+LENSES = ("R1a", "R2a", "R3a", "R4a")
+DEFAULT_GLASSES = ("N-LAK22", "N-BK7", "N-SF11", "N-LASF31A")
+
+
+# ----------------------------------------------------------------- the design's relay
+
+@dataclass
+class Relay:
+    """A four-singlet relay around a thin tunable lens: ``gaps`` (6,) AA → L1, L1 → L2,
+    L2 → TL, TL → L3, L3 → L4, L4 → reference plane; ``c1``, ``c2``, ``t``, ``n`` (4,)."""
+
+    gaps: np.ndarray
+    c1: np.ndarray
+    c2: np.ndarray
+    t: np.ndarray
+    n: np.ndarray
+
+    @property
+    def length(self) -> float:
+        return float(np.sum(self.gaps) + np.sum(self.t))
+
+    def petzval(self) -> float:
+        return float(np.sum((self.n - 1.0) * (self.c1 - self.c2) / self.n))
+
+    def pack(self) -> np.ndarray:
+        return np.concatenate([self.gaps, self.c1, self.c2, self.t])
+
+    @classmethod
+    def unpack(cls, v, n) -> Relay:
+        v = np.asarray(v, dtype=np.float64)
+        return cls(v[:6].copy(), v[6:10].copy(), v[10:14].copy(), v[14:18].copy(), np.asarray(n, dtype=np.float64))
+
+
+def _curvature(s: dict) -> float:
+    return float(s["curvature"] if "curvature" in s else 1.0 / s["radius"])
+
+
+def read_relay(raw: dict, lam: float):
+    """(Relay, the tunable lens's power at each CDP state in mm⁻¹) of a design."""
+    S = raw["surfaces"]
+    names = [s.get("name") for s in S]
+    ia, it = names.index("AA"), names.index(raw["ini"]["tunable"]["surface"])
+    idx = [names.index(x) for x in LENSES]
+    if not (ia < idx[0] < idx[1] < it < idx[2] < idx[3]):
+        raise ValueError("expected AA, two singlets, the tunable lens, two singlets in that order")
+    c1 = np.array([_curvature(S[i]) for i in idx])
+    c2 = np.array([_curvature(S[i + 1]) for i in idx])
+    t = np.array([float(S[i]["thickness"]) for i in idx])
+    n = np.array([float(lookup(S[i]["material"]).index(lam)) for i in idx])
+    th = lambda i: float(S[i]["thickness"])  # noqa: E731
+    gaps = np.array([th(ia), th(idx[0] + 1), th(idx[1] + 1), th(it), th(idx[2] + 1), th(idx[3] + 1)])
+    inside = set(range(ia + 1, idx[3] + 2)) - {it, *idx, *(j + 1 for j in idx)}
+    if inside:
+        raise ValueError(f"surface {names[min(inside)]!r} inside the relay: only four singlets and the tunable lens")
+    phis = np.asarray(raw["ini"]["tunable"]["power_diopters"], dtype=np.float64) * 1e-3
+    return Relay(gaps, c1, c2, t, n), phis
+
+
+def _T(d):
+    return np.array([[1.0, d], [0.0, 1.0]])
+
+
+def _L(phi):
+    return np.array([[1.0, 0.0], [-phi, 1.0]])
+
+
+def _steps(r: Relay, phi: float):
+    """The relay as (kind, matrix) steps from the AA plane: ``"face"`` steps are refractions
+    (their heights are the footprints), ``"tunable"`` the thin tunable lens."""
+    out = []
+
+    def lens(j):
+        out.append(("face", _L((r.n[j] - 1.0) * r.c1[j])))
+        out.append(("gap", _T(r.t[j] / r.n[j])))
+        out.append(("face", _L((1.0 - r.n[j]) * r.c2[j])))
+
+    out.append(("gap", _T(r.gaps[0])))
+    lens(0)
+    out.append(("gap", _T(r.gaps[1])))
+    lens(1)
+    out.append(("gap", _T(r.gaps[2])))
+    out.append(("tunable", _L(phi)))
+    out.append(("gap", _T(r.gaps[3])))
+    lens(2)
+    out.append(("gap", _T(r.gaps[4])))
+    lens(3)
+    out.append(("gap", _T(r.gaps[5])))
+    return out
+
+
+def matrices(r: Relay, phi: float):
+    """``(faces, M_a, M_b)``: the matrices AA → each of the 8 faces, and the split
+    ``M = M_b · L(φ) · M_a`` about the tunable lens (``M_a``: AA → the tunable lens)."""
+    M, faces, Ma, Mb = np.eye(2), [], None, None
+    for kind, A in _steps(r, phi):
+        if kind == "face":
+            faces.append(M)
+        elif kind == "tunable":
+            Ma, Mb = M, np.eye(2)
+        M = A @ M
+        if Mb is not None and kind != "tunable":
+            Mb = A @ Mb
+    return faces, Ma, Mb
+
+
+def seidel(r: Relay, phi: float, marginal, chief) -> np.ndarray:
+    """Third-order Seidel sums (S_I spherical, S_II coma, S_III astigmatism, S_IV Petzval) of the
+    singlets' eight faces for a ``marginal`` and a ``chief`` ray (y, dy/dz) given at the AA plane,
+    through the tunable lens of power ``phi`` (ideal: it adds none). W. T. Welford, *Aberrations of
+    Optical Systems* (1986), ch. 8: ``S_I = −ΣA²yΔ(u/n)``, ``S_II = −ΣAĀyΔ(u/n)``,
+    ``S_III = −ΣĀ²yΔ(u/n)``, ``S_IV = −ΣH²cΔ(1/n)`` with ``A = n(u + yc)`` and the Lagrange
+    invariant ``H = n(uȳ − ūy)``."""
+    (y, u), (yb, ub) = marginal, chief
+    H = u * yb - ub * y
+    n = 1.0
+    S = np.zeros(4)
+
+    def face(c, n2):
+        nonlocal y, u, yb, ub, n
+        A, Ab = n * (u + y * c), n * (ub + yb * c)
+        u2, ub2 = (A / n2) - y * c, (Ab / n2) - yb * c
+        d = u2 / n2 - u / n
+        S[:] += [-A * A * y * d, -A * Ab * y * d, -Ab * Ab * y * d, -H * H * c * (1.0 / n2 - 1.0 / n)]
+        u, ub, n = u2, ub2, n2
+
+    def move(t):
+        nonlocal y, yb
+        y, yb = y + t * u, yb + t * ub
+
+    def lens(j):
+        face(r.c1[j], r.n[j])
+        move(r.t[j])
+        face(r.c2[j], 1.0)
+
+    def tunable():
+        nonlocal u, ub
+        u, ub = u - y * phi, ub - yb * phi
+
+    for step in (lambda: move(r.gaps[0]), lambda: lens(0), lambda: move(r.gaps[1]), lambda: lens(1),
+                 lambda: move(r.gaps[2]), tunable, lambda: move(r.gaps[3]), lambda: lens(2),
+                 lambda: move(r.gaps[4]), lambda: lens(3)):
+        step()
+    return S
+
+
+def sag(c, h):
+    return c * h * h / (1.0 + np.sqrt(np.maximum(1.0 - (c * h) ** 2, 1e-12)))
+
+
+# ----------------------------------------------------------------- the ray bundle
+
+def bundle(design_path: Path):
+    """The design's ray bundle at the AA plane, from the rays' hits on AA and on the first relay
+    face: ``(rays, marginal)``. ``rays`` (N, 5): the real rays (x, y, dx/dz, dy/dz, CDP state) of
+    the package figures (:func:`lfsim.ini.package.ray_set`); ``marginal`` (K, 2): per CDP state,
+    the central lenslet's centre-field +x marginal ray relative to its chief ray (y, dy/dz)."""
+    from lfsim.design.design import load
+    from lfsim.ini.model import IniModel
+    from lfsim.ini.package import FIELDS, PUPIL, ray_set
+    from lfsim.ini.subsystems import trace_rays_jacobian
+
+    model = IniModel(load(design_path))
+    names = [s.name for s in model.system.surfaces]
+    ia, i1 = names.index("AA"), names.index(LENSES[0])
+    s, m, n, rho, k, lens = ray_set(model)
+    J = trace_rays_jacobian(model, s, m, n, rho, k, [], record=[ia, i1], derivatives=False)
+    frames = model.tracer.frames_numpy(model.tracer.params(values=model.values0))
+    p0 = J.surf[:, 0, :] + model.lenslet_center(m, n)
+    p1 = J.surf[:, 1, :]
+    raw = tomllib.loads(Path(design_path).read_text())
+    c = _curvature(next(x for x in raw["surfaces"] if x.get("name") == LENSES[0]))
+    dz = frames[i1][1][2] + sag(c, np.hypot(p1[:, 0], p1[:, 1])) - frames[ia][1][2]
+    rays = np.column_stack([p0, (p1 - p0) / dz[:, None], k])
+    K, L, F, R = len(model.depths), len(lens), len(FIELDS), len(PUPIL)
+    j = int(np.nonzero((lens[:, 0] == model.arr.m // 2) & (lens[:, 1] == model.arr.n // 2))[0][0])
+    marginal = []
+    for kk in range(K):
+        base = ((kk * L + j) * F + 0) * R
+        chief, edge = rays[base], rays[base + 1]  # PUPIL[0] the chief ray, PUPIL[1] the +x marginal ray
+        if J.status[base] != 0 or J.status[base + 1] != 0:
+            raise ValueError("the central lenslet's centre-field rays fail")
+        marginal.append((edge[0] - chief[0], edge[2] - chief[2]))
+    return rays[J.status == 0], np.array(marginal)
+
+
+def footprints(r: Relay, phis, rays: np.ndarray):
+    """Paraxial footprint radii of ``rays`` (N, 5) on the 8 faces and on the tunable lens, each
+    ray through the tunable power of its own CDP state (``phis``, mm⁻¹)."""
+    face = np.zeros(8)
+    tun = 0.0
+    for k, phi in enumerate(phis):
+        sel = rays[:, 4] == k
+        if not sel.any():
+            continue
+        x = rays[sel]
+        faces, Ma, _ = matrices(r, phi)
+        for j, M in enumerate(faces):
+            face[j] = max(face[j], np.max(np.hypot(M[0, 0] * x[:, 0] + M[0, 1] * x[:, 2],
+                                                   M[0, 0] * x[:, 1] + M[0, 1] * x[:, 3])))
+        tun = max(tun, np.max(np.hypot(Ma[0, 0] * x[:, 0] + Ma[0, 1] * x[:, 2],
+                                       Ma[0, 0] * x[:, 1] + Ma[0, 1] * x[:, 3])))
+    return face, tun
+
+
+# ----------------------------------------------------------------- the search
+
+@dataclass
+class Rules:
+    """The package's rules for the relay (mm)."""
+
+    clear_diameter: float = 23.2
+    max_slope: float = 0.7
+    margin: float = 0.3
+    min_glass: float = 1.0
+    min_air: float = 1.0
+    min_back: float = 16.0
+    max_length: float = math.inf
+    tunable_range: tuple = (8.3e-3, 20.0e-3)
+    #: largest |S_I| and |S_II| (mm, for the Seidel rays of :class:`Search`): 1e-3 is about 0.2 λ
+    #: of W040 = S_I/8; the design's own relay has 6e-5 and 4e-5
+    spherical_max: float = 1e-3
+    coma_max: float = 1e-3
+
+
+class Search:
+    """Least Petzval sum of the relay at ``ref``'s first order, under ``rules``, for given glasses."""
+
+    def __init__(self, ref: Relay, phis, rays: np.ndarray, marginal, rules: Rules, k1: int = 1):
+        self.ref, self.phis, self.rays, self.rules = ref, np.asarray(phis, dtype=np.float64), rays, rules
+        self.k1 = k1
+        _, Ma, Mb = matrices(ref, self.phis[k1])
+        self.M0 = Mb @ _L(self.phis[k1]) @ Ma
+        self.a0, self.b0 = Ma[0, :].copy(), Mb[:, 1].copy()
+        self.tun0 = footprints(ref, self.phis, rays)[1]
+        # Seidel rays at the 1 D state: the axial beamlet's marginal ray, and the chief ray of the
+        # corner lenslet's EI centre through the tunable lens's centre (the same ray for every
+        # candidate: M_a's first row keeps its direction).
+        h = float(np.max(np.hypot(rays[:, 0], rays[:, 1])))
+        self.marginal, self.chief = tuple(marginal[k1]), (h, -Ma[0, 0] * h / Ma[0, 1])
+        self.seidel0 = seidel(ref, self.phis[k1], self.marginal, self.chief)
+
+    # x = (gaps 6, c1 4, c2 4, t 4, phi1)
+    def _relay(self, x, n):
+        return Relay.unpack(x[:18], n)
+
+    def state_powers(self, x, n):
+        """(tunable powers per CDP state, k) at ``x``."""
+        r = self._relay(x, n)
+        _, Ma, Mb = matrices(r, x[18])
+        alpha = Ma[0, :] @ self.a0 / (self.a0 @ self.a0)
+        beta = Mb[:, 1] @ self.b0 / (self.b0 @ self.b0)
+        k = 1.0 / (alpha * beta)
+        return x[18] + k * (self.phis - self.phis[self.k1]), k
+
+    def equalities(self, x, n):
+        r = self._relay(x, n)
+        _, Ma, Mb = matrices(r, x[18])
+        M = Mb @ _L(x[18]) @ Ma
+        a, b = Ma[0, :], Mb[:, 1]
+        return np.array([M[0, 0] - self.M0[0, 0], (M[0, 1] - self.M0[0, 1]) / 10.0,
+                         (M[1, 0] - self.M0[1, 0]) * 10.0,
+                         (a[0] * self.a0[1] - a[1] * self.a0[0]) / (np.linalg.norm(self.a0) ** 2),
+                         (b[0] * self.b0[1] - b[1] * self.b0[0]) / (np.linalg.norm(self.b0) ** 2)])
+
+    def semi_diameters(self, x, n):
+        r = self._relay(x, n)
+        phis, _ = self.state_powers(x, n)
+        face, tun = footprints(r, phis, self.rays)
+        return face, tun
+
+    def inequalities(self, x, n):
+        """Every rule as ``g ≥ 0``."""
+        R, r = self.rules, self._relay(x, n)
+        face, tun = self.semi_diameters(x, n)
+        phis, _ = self.state_powers(x, n)
+        a = np.maximum(face[0::2], face[1::2]) + R.margin  # each lens's semi-diameter
+        g = [R.clear_diameter / 2.0 - face, np.array([self.tun0 - tun])]
+        g.append(R.max_slope ** 2 - (r.c1 * a) ** 2)
+        g.append(R.max_slope ** 2 - (r.c2 * a) ** 2)
+        g.append(r.t - R.min_glass)
+        g.append(r.t - sag(r.c1, a) + sag(r.c2, a) - R.min_glass)
+        g.append(np.array([r.gaps[0] + min(0.0, sag(r.c1[0], a[0])) - R.min_air]))
+        for j, gi in ((0, 1), (2, 4)):  # air between the two lenses of each group, centre and rim
+            h = min(a[j], a[j + 1])
+            g.append(np.array([r.gaps[gi] - R.min_air, r.gaps[gi] - sag(r.c2[j], h) + sag(r.c1[j + 1], h) - R.min_air]))
+        g.append(np.array([r.gaps[2] - max(0.0, sag(r.c2[1], a[1])) - R.min_air,
+                           r.gaps[3] + min(0.0, sag(r.c1[2], a[2])) - R.min_air]))
+        g.append(np.array([r.gaps[5] - R.min_back]))
+        if math.isfinite(R.max_length):
+            g.append(np.array([R.max_length - r.length]))
+        g.append(np.concatenate([(phis - R.tunable_range[0]) * 1e3, (R.tunable_range[1] - phis) * 1e3]))
+        S1, S2, _, _ = seidel(r, x[18], self.marginal, self.chief)
+        g.append(np.array([R.spherical_max ** 2 - S1 ** 2, R.coma_max ** 2 - S2 ** 2]) / R.coma_max ** 2)
+        return np.concatenate(g)
+
+    def field_curvature(self, x, n) -> float:
+        """The objective: sagittal and tangential field curvature, ``(S_III + S_IV)² + (3·S_III +
+        S_IV)²``, relative to the design's own Petzval term S_IV."""
+        _, _, S3, S4 = seidel(self._relay(x, n), x[18], self.marginal, self.chief)
+        return float(((S3 + S4) ** 2 + (3.0 * S3 + S4) ** 2) / self.seidel0[3] ** 2)
+
+    def start(self, n_new, rng=None, spread=0.0):
+        """The reference relay in the glasses ``n_new``, each lens's matrix kept (curvatures ×
+        (n − 1)/(n′ − 1), thickness × n′/n), optionally perturbed."""
+        r = self.ref
+        f = (r.n - 1.0) / (n_new - 1.0)
+        x = np.concatenate([r.gaps, r.c1 * f, r.c2 * f, r.t * n_new / r.n, [self.phis[self.k1]]])
+        if rng is not None and spread > 0:
+            x[6:14] += rng.normal(0.0, spread * 0.03, 8)
+            x[:6] *= np.exp(rng.normal(0.0, spread * 0.2, 6))
+        return x
+
+    def solve(self, n_new, x0, maxiter=300):
+        n_new = np.asarray(n_new, dtype=np.float64)
+        bounds = [(0.5, 120.0)] * 6 + [(-0.2, 0.2)] * 8 + [(1.0, 20.0)] * 4 + [self.rules.tunable_range]
+        res = minimize(lambda x: self.field_curvature(x, n_new), x0, method="SLSQP", bounds=bounds,
+                       constraints=[{"type": "eq", "fun": lambda x: self.equalities(x, n_new)},
+                                    {"type": "ineq", "fun": lambda x: self.inequalities(x, n_new)}],
+                       options={"maxiter": maxiter, "ftol": 1e-12})
+        x = res.x
+        feasible = (np.max(np.abs(self.equalities(x, n_new))) < 1e-7
+                    and np.min(self.inequalities(x, n_new)) > -1e-6)
+        return x, self.field_curvature(x, n_new), feasible
+
+
+# ----------------------------------------------------------------- a design with the found relay
+
+def write_variant(raw: dict, r: Relay, glasses, phis, ref_length: float, semi_margin: float = 1.0,
+                  semi_max: float = 11.6, semi: np.ndarray | None = None) -> dict:
+    """``raw`` with its relay replaced by ``r`` (glasses by name), the tunable lens's powers
+    ``phis`` (mm⁻¹, per CDP state), everything behind the relay moved along the axis by the
+    change of length, and the optimizer's bounds on relay variables widened to hold the new values."""
+    from relay_variants import _shift_after_relay
+
+    out = copy.deepcopy(raw)
+    S = out["surfaces"]
+    names = [s.get("name") for s in S]
+    tl = out["ini"]["tunable"]["surface"]
+    ia, it = names.index("AA"), names.index(tl)
+    idx = [names.index(x) for x in LENSES]
+    k1 = int(np.argmin(np.abs(np.asarray(out["ini"]["cdp_diopters"], dtype=float) - 1.0)))
+    for j, i in enumerate(idx):
+        a, b = S[i], S[i + 1]
+        for s_ in (a, b):
+            s_.pop("radius", None)
+        a["curvature"], b["curvature"] = float(r.c1[j]), float(r.c2[j])
+        a["thickness"], a["material"] = float(r.t[j]), glasses[j]
+        if semi is not None:
+            a["semi_diameter"] = b["semi_diameter"] = float(min(semi_max, semi[j] + semi_margin))
+        a["comment"] = f"relay lens {j + 1}, {glasses[j]} (relay of least Petzval sum, examples/relay_petzval.py)"
+    for i, g in zip((ia, idx[0] + 1, idx[1] + 1, it, idx[2] + 1, idx[3] + 1), r.gaps):
+        S[i]["thickness"] = float(g)
+    S[it]["focal_length"] = float(1.0 / phis[k1])
+    out["ini"]["tunable"]["power_diopters"] = [float(p * 1e3) for p in phis]
+    _shift_after_relay(out, r.length - ref_length)
+    value = {f"{s_['name']}.curvature": s_.get("curvature") for s_ in S if "name" in s_}
+    value |= {f"{s_['name']}.thickness": s_.get("thickness") for s_ in S if "name" in s_}
+    value["tunable"] = float(phis[k1] * 1e3)
+    for v in out.get("optimize", {}).get("variables", []):
+        if isinstance(v, dict) and value.get(v.get("name")) is not None:
+            x = float(value[v["name"]])
+            if "min" in v and x < v["min"]:
+                v["min"] = x - 0.25 * abs(x)
+            if "max" in v and x > v["max"]:
+                v["max"] = x + 0.25 * abs(x)
+    out["name"] = f"{raw.get('name', 'design')} (relay of least Petzval sum: {', '.join(glasses)})"
+    return out
+
+
+# ----------------------------------------------------------------- command line
+
+def search(S: Search, glasses, lam: float, starts: int, seed: int):
+    """The least field curvature over ``starts`` SLSQP runs (the reference relay in these glasses,
+    then random perturbations of it): ``(x, objective, feasible runs)`` or None."""
+    n = np.array([float(lookup(g).index(lam)) for g in glasses])
+    rng = np.random.default_rng(seed)
+    best, feasible = None, 0
+    for s in range(starts):
+        x, P, ok = S.solve(n, S.start(n, rng, spread=1.0 if s else 0.0))
+        feasible += ok
+        if ok and (best is None or abs(P) < abs(best[1])):
+            best = (x, P)
+    return None if best is None else (best[0], best[1], feasible)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--design", default=str(ROOT / "scenes" / "ini_wearable_optimized.toml"))
+    ap.add_argument("--out", required=True, help="folder for relay_petzval.json / .png and the written designs")
+    ap.add_argument("--track-limits", default="150,175,200",
+                    help="track limits (mm), comma separated; 'none' for no limit")
+    ap.add_argument("--glasses", action="append",
+                    help="four glasses, comma separated, one assignment per flag (default: all N-LAK22, and "
+                         "N-LASF31A,N-BK7,N-LASF31A,N-LASF31A)")
+    ap.add_argument("--clear-diameter", type=float, default=23.2, help="largest clear diameter (mm)")
+    ap.add_argument("--starts", type=int, default=10)
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--write", action="store_true", help="write each best relay as a design file")
+    args = ap.parse_args(argv)
+
+    path = Path(args.design)
+    raw = tomllib.loads(path.read_text())
+    lam = float(raw.get("system", {}).get("primary_wavelength_nm", 587.5618))
+    ref, phis = read_relay(raw, lam)
+    from lfsim.design.design import load
+    from lfsim.ini.model import IniModel
+    from lfsim.ini.package import package
+
+    track = float(package(IniModel(load(path)))["track_mm"])
+    rays, marginal = bundle(path)
+    assignments = [tuple(g.strip() for g in a.split(",")) for a in (args.glasses or [
+        "N-LAK22,N-LAK22,N-LAK22,N-LAK22", "N-LASF31A,N-BK7,N-LASF31A,N-LASF31A"])]
+    for a in assignments:
+        if len(a) != 4:
+            ap.error(f"--glasses {','.join(a)!r}: four glasses, one per singlet")
+        for g in a:
+            lookup(g)
+    limits = [math.inf if v.strip().lower() == "none" else float(v) for v in args.track_limits.split(",")]
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    print(f"{path.name}: relay Petzval sum {ref.petzval():.4f} /mm, relay length {ref.length:.2f} mm, "
+          f"track {track:.2f} mm")
+    for lim, glasses in itertools.product(limits, assignments):
+        rules = Rules(clear_diameter=args.clear_diameter, max_length=ref.length + (lim - track))
+        S = Search(ref, phis, rays, marginal, rules)
+        found = search(S, glasses, lam, args.starts, args.seed)
+        row = {"track_limit_mm": None if math.isinf(lim) else lim, "glasses": list(glasses),
+               "clear_diameter_mm": args.clear_diameter, "starts": args.starts}
+        if found is None:
+            row.update(field_curvature=None, feasible_starts=0)
+            print(f"track <= {lim:g} mm, {','.join(glasses)}: no feasible relay in {args.starts} starts")
+        else:
+            x, fc, nf = found
+            fc, nf = float(fc), int(nf)
+            r = S._relay(x, np.array([float(lookup(g).index(lam)) for g in glasses]))
+            P = r.petzval()
+            face, tun = S.semi_diameters(x, r.n)
+            powers, k = S.state_powers(x, r.n)
+            semi = np.maximum(face[0::2], face[1::2]) + S.rules.margin
+            row.update(field_curvature=fc, petzval_per_mm=P, feasible_starts=nf,
+                       seidel=seidel(r, x[18], S.marginal, S.chief).tolist(), track_mm=track + r.length - ref.length,
+                       relay_length_mm=r.length, gaps_mm=r.gaps.tolist(), c1=r.c1.tolist(), c2=r.c2.tolist(),
+                       thickness_mm=r.t.tolist(), semi_diameter_mm=semi.tolist(),
+                       lens_power_diopters=((r.n - 1.0) * (r.c1 - r.c2) * 1e3).tolist(),
+                       tunable_power_diopters=(powers * 1e3).tolist(), tunable_footprint_mm=2.0 * tun)
+            print(f"track <= {lim:g} mm, {','.join(glasses)}: field curvature {fc:.3f}, Petzval {P:.4f} /mm "
+                  f"(track {row['track_mm']:.2f} mm, "
+                  f"lens powers {', '.join(f'{v:.1f}' for v in row['lens_power_diopters'])} D; "
+                  f"{nf}/{args.starts} starts feasible)")
+            if args.write:
+                tag = f"track{'none' if math.isinf(lim) else f'{lim:g}'}_{'-'.join(glasses)}"
+                p = out / f"{tag}.toml"
+                p.write_text(tomli_w.dumps(write_variant(raw, r, glasses, powers, ref.length, semi=semi)))
+                row["design"] = str(p)
+        rows.append(row)
+    S0 = Search(ref, phis, rays, marginal, Rules())
+    doc = {"design": str(path), "reference": {
+        "field_curvature": S0.field_curvature(S0.start(ref.n), ref.n), "petzval_per_mm": ref.petzval(),
+        "seidel": S0.seidel0.tolist(), "relay_length_mm": ref.length, "track_mm": track}, "rows": rows}
+    (out / "relay_petzval.json").write_text(json.dumps(doc, indent=2))
+    _plot(doc, out / "relay_petzval.png")
+    print(f"wrote {out / 'relay_petzval.json'}, {out / 'relay_petzval.png'}")
+    return 0
+
+
+def _plot(doc: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for glasses in sorted({tuple(r["glasses"]) for r in doc["rows"]}):
+        pts = [(r["track_mm"], r["field_curvature"]) for r in doc["rows"]
+               if tuple(r["glasses"]) == glasses and r["field_curvature"] is not None]
+        if pts:
+            ax.plot(*zip(*sorted(pts)), "o-", label=", ".join(glasses))
+    ref = doc["reference"]
+    ax.plot([ref["track_mm"]], [ref["field_curvature"]], "ks", label="the design's relay")
+    ax.axhline(0.0, color="0.6", lw=0.8)
+    ax.set_xlabel("track of the best relay found (mm)")
+    ax.set_ylabel("field curvature ((S_III+S_IV)² + (3S_III+S_IV)²) / S_IV,0²")
+    ax.set_title("Least field curvature of four singlets at the same first order", fontsize=9)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    sys.exit(main())

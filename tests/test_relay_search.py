@@ -1,0 +1,79 @@
+"""examples/relay_petzval.py: the paraxial search for a flatter relay at the same first order.
+
+Its Seidel sums are checked against the closed forms of a thin lens (Welford), and a relay it
+writes into a design keeps that design's InI first-order model (Eqs. 1-10 from the design's
+own maps) while the rules it searches under hold for the design's own relay."""
+
+import importlib.util
+import sys
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tomli_w
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "examples"))  # relay_petzval imports relay_variants
+spec = importlib.util.spec_from_file_location("relay_petzval", ROOT / "examples" / "relay_petzval.py")
+rp = importlib.util.module_from_spec(spec)
+sys.modules["relay_petzval"] = rp  # its dataclasses look their module up
+spec.loader.exec_module(rp)
+
+KEYS = ("tunable_power_diopters", "cdp_diopters_x", "cdp_diopters_y", "p_ei", "d_v", "D_v", "pixel_arcmin",
+        "fov_deg")
+
+
+def _thin_lens(c1, c2, n=1.5):
+    """A relay whose first singlet is a thin lens (t → 0) at the AA plane, the rest empty."""
+    z = np.zeros(4)
+    return rp.Relay(np.zeros(6), np.array([c1, 0, 0, 0]), np.array([c2, 0, 0, 0]), np.full(4, 1e-12),
+                    np.full(4, n)), z
+
+
+@pytest.mark.parametrize("curved_first", [True, False])
+def test_seidel_sums_of_a_thin_lens_match_welford(curved_first):
+    # Thin lens in air, object at infinity, stop at the lens (W. T. Welford, Aberrations of Optical
+    # Systems, 1986, eqs. 9.x): S_I = y^4 K^3 / 4 [(n/(n-1))^2 + (n+2)/(n(n-1)^2) B^2
+    # + 4(n+1)/(n(n-1)) B C + (3n+2)/n C^2], S_III = H^2 K, S_IV = H^2 K / n. For a plano-convex
+    # lens |B| = |C| = 1; B C = -1 with the curved face toward the collimated beam (the bending of
+    # least spherical aberration), +1 turned round.
+    n, R, y, ub = 1.5, 50.0, 2.0, 0.05
+    r, _ = _thin_lens(1 / R, 0.0, n) if curved_first else _thin_lens(0.0, -1 / R, n)
+    K = (n - 1) / R
+    S = rp.seidel(r, 0.0, (y, 0.0), (0.0, ub))
+    bc = -1.0 if curved_first else 1.0
+    bracket = (n / (n - 1)) ** 2 + (n + 2) / (n * (n - 1) ** 2) + 4 * (n + 1) / (n * (n - 1)) * bc + (3 * n + 2) / n
+    H = -ub * y
+    assert S[0] == pytest.approx(y ** 4 * K ** 3 / 4 * bracket, rel=1e-9)
+    assert S[2] == pytest.approx(H ** 2 * K, rel=1e-9)
+    assert S[3] == pytest.approx(H ** 2 * K / n, rel=1e-12)
+    assert S[3] / H ** 2 == pytest.approx(r.petzval(), rel=1e-12)
+
+
+def test_the_design_relay_obeys_the_rules_and_a_found_relay_keeps_the_first_order(tmp_path):
+    path = ROOT / "scenes" / "ini_wearable_optimized.toml"
+    raw = tomllib.loads(path.read_text())
+    lam = raw["system"]["primary_wavelength_nm"]
+    ref, phis = rp.read_relay(raw, lam)
+    rays, marginal = rp.bundle(path)
+    S = rp.Search(ref, phis, rays, marginal, rp.Rules())
+    x0 = S.start(ref.n)
+    assert np.max(np.abs(S.equalities(x0, ref.n))) < 1e-12
+    assert np.min(S.inequalities(x0, ref.n)) > -1e-9
+    assert ref.petzval() == pytest.approx(0.0791155, abs=1e-6)
+    # the same lenses in N-LASF31A (each lens's matrix kept), then one SLSQP run: every rule and
+    # the first order hold, and the field is flatter
+    n = np.full(4, float(rp.lookup("N-LASF31A").index(lam)))
+    x, fc, ok = S.solve(n, S.start(n), maxiter=100)
+    assert ok and fc < S.field_curvature(x0, ref.n)
+    r = S._relay(x, n)
+    semi = np.max(np.reshape(S.semi_diameters(x, n)[0], (4, 2)), axis=1) + S.rules.margin
+    p = tmp_path / "found.toml"
+    p.write_text(tomli_w.dumps(rp.write_variant(raw, r, ["N-LASF31A"] * 4, S.state_powers(x, n)[0], ref.length,
+                                                semi=semi)))
+    from relay_variants import first_order
+
+    for a, b in zip(first_order(path), first_order(p)):
+        for k in KEYS:
+            assert np.allclose(np.atleast_1d(b[k]), np.atleast_1d(a[k]), rtol=0, atol=1e-6), (k, a[k], b[k])
