@@ -50,7 +50,7 @@ def _roundtrip(design: Design, fmt: str, tmp_path: Path, lenslet=None) -> Design
                                              ("freeform_prism", 4.0, (-8.0, 0.0, 8.0))])
 def test_roundtrip_reproduces_every_ray(name, epd, fields, fmt, tmp_path):
     d = load(SCENES / f"{name}.toml")
-    if fmt == "seq" and name == "freeform_prism":  # PMMA has no CODE V name: its model glass instead
+    if name == "freeform_prism":  # PMMA has no CODE V or Zemax name: its model glass instead
         p = tmp_path / f"{name}.toml"
         p.write_text((SCENES / f"{name}.toml").read_text().replace('"PMMA"', "{ nd = 1.490618, vd = 53.18 }"))
         d = load(p)
@@ -432,15 +432,75 @@ def test_seq_export_refuses_a_material_no_vendor_catalog_holds(glass, tmp_path, 
     assert not out.exists()
 
 
-@pytest.mark.parametrize("glasses", [("N-BK7", "F2", "N-SK16"), ("SK16", "F2", "SK16")])
-def test_rayoptics_reads_exported_built_in_glasses(glasses, tmp_path):
-    """rayoptics reads the exported triplet with lfsim's EFL (bare F2 and SK16 it took from CDGM's
-    and Robb 1983's OHARA catalogs: 48.93 mm against 50.02 mm). Its catalogs (opticalglass 1.1.1)
-    lack HIKARI SK16, listing J-SK16 only, and it reads SK16_HIKARI as Robb's SK16 (nd 7.5e-4
-    higher): with lfsim's index given to that glass, it agrees."""
+def _zemax_glasses(text: str) -> list[str]:
+    """Each GLAS name of a .zmx text as Zemax takes it: NAME_VENDOR of the first GCAT catalog
+    that holds the name (by lfsim's copies of the vendor catalogs)."""
+    from lfsim.optics.glass_catalogs import index, name_key
+
+    lines = [ln.split() for ln in text.splitlines()]
+    gcat = next(t[1:] for t in lines if t[:1] == ["GCAT"])
+    out = []
+    for t in lines:
+        if t[:1] == ["GLAS"] and t[1] not in ("MIRROR", "___BLANK"):
+            held = {h[0] for h in index().get(name_key(t[1]), [])}
+            out.append(next((f"{t[1]}_{v}" for v in gcat if v in held), f"{t[1]} (in no GCAT catalog)"))
+    return out
+
+
+@pytest.mark.parametrize("glasses,gcat,taken", [
+    (("SK16", "F2", "SK16"), "SCHOTT HIKARI", ["SK16_HIKARI", "F2_SCHOTT", "SK16_HIKARI"]),
+    (("SK16", "F2_CDGM", "SK16"), "CDGM HIKARI", ["SK16_HIKARI", "F2_CDGM", "SK16_HIKARI"]),
+    (("N-BK7", "NSSK2_SCHOTT", "F2_HIKARI"), "HIKARI SCHOTT", ["N-BK7_SCHOTT", "N-SSK2_SCHOTT", "F2_HIKARI"])])
+def test_zmx_export_lists_the_catalogs_each_glass_is_taken_from(glasses, gcat, taken, tmp_path):
+    """Zemax takes a GLAS name from the first GCAT catalog that has it. GCAT lists the vendors of
+    the glasses used, each before the others that have a glass of the same name (F2: SCHOTT,
+    HIKARI and CDGM), so that every name is taken from the catalog with the design's indices
+    (the Cooke triplet's SK16 went out with GCAT SCHOTT OHARA HOYA, none of which has it), and
+    lfsim reads it back so: the EFL at every wavelength is the design's (F2_CDGM was read as
+    lfsim's SCHOTT F2)."""
     d = load(_triplet(glasses, tmp_path))
-    p = tmp_path / "t.seq"
-    p.write_text(export_text(d, "seq")[0])
+    text, _ = export_text(d, "zmx")
+    assert f"GCAT {gcat}" in text.splitlines()
+    assert _zemax_glasses(text) == taken
+    p = tmp_path / "t.zmx"
+    p.write_text(text)
+    back = Design.from_dict(import_lens(p).raw, str(p))
+    for lam in d.system.wavelengths_nm:
+        assert math.isclose(back.first_order(lam).efl, d.first_order(lam).efl, rel_tol=1e-12)
+
+
+@pytest.mark.parametrize("glasses,what", [
+    (("N-BK7", "PMMA", "N-BK7"), "surface L2_front: material 'PMMA' is in no vendor catalog"),
+    (("N-BK7", "PC", "N-BK7"), "surface L2_front: material 'PC' is in no vendor catalog"),
+    (("N-BK7", "E48R", "N-BK7"), "surface L2_front: material 'E48R' is in no vendor catalog"),
+    (("N-BK7", "PS", "N-BK7"), "surface L2_front: material 'PS' is in no vendor catalog"),
+    (("N-BK7", "FUSED_SILICA", "N-BK7"), "surface L2_front: material 'FUSED_SILICA' is in no vendor catalog"),
+    (("F2", "F2_CDGM", "N-BK7"), "surface L1_front 'F2' (F2 of SCHOTT); surface L2_front 'F2_CDGM' (F2 of CDGM)")])
+def test_zmx_export_refuses_a_glass_zemax_would_take_elsewhere(glasses, what, tmp_path, capsys):
+    """A material no vendor catalog holds has no GLAS name with its indices (written bare, as
+    before, Zemax finds no PMMA in the GCAT catalogs and rayoptics reads n = 1.5; a ___BLANK model
+    glass has another dispersion), and two glasses of one name from two vendors need opposite GCAT
+    orders: refused in one line, nothing written."""
+    src = _triplet(glasses, tmp_path)
+    out = tmp_path / "t.zmx"
+    assert main(["export", str(src), "--zmx", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(src) in err[0] and what in err[0], err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("fmt", ["seq", "zmx"])
+@pytest.mark.parametrize("glasses", [("N-BK7", "F2", "N-SK16"), ("SK16", "F2", "SK16"), ("SK16", "F2_CDGM", "SK16")])
+def test_rayoptics_reads_exported_built_in_glasses(glasses, fmt, tmp_path):
+    """rayoptics reads the exported triplet with lfsim's indices and EFL (.seq: bare F2 and SK16 it
+    took from CDGM's and Robb 1983's OHARA catalogs, 48.93 mm against 50.02 mm). Its catalogs
+    (opticalglass 1.1.1) lack HIKARI SK16, listing J-SK16 only (another glass, 1.2e-5 off), and
+    it reads SK16 of HIKARI (SK16_HIKARI, or SK16 with GCAT ... HIKARI) as Robb's SK16 (nd 7.5e-4
+    higher), as from the .zmx GCAT SCHOTT OHARA HOYA before: with lfsim's index given to that
+    glass, it agrees."""
+    d = load(_triplet(glasses, tmp_path))
+    p = tmp_path / f"t.{fmt}"
+    p.write_text(export_text(d, fmt)[0])
     om = _ro_model(p)
     from opticalglass.opticalmedium import ConstantIndex
 
@@ -449,8 +509,31 @@ def test_rayoptics_reads_exported_built_in_glasses(glasses, tmp_path):
         if g.medium.name() == "SK16" and g.medium.catalog_name() != "Hikari":
             g.medium = ConstantIndex(lookup("SK16").index(wvl), "SK16")
     om.update_model()
+    dn = [abs(g.medium.rindex(wvl) - m.index(wvl)) for g, m in zip(om["seq_model"].gaps, d.system.media())]
+    assert max(dn) <= 1e-12, dn
     efl = om["analysis_results"]["parax_data"].fod.efl
     assert math.isclose(efl, d.first_order(wvl, method="paraxial").efl, rel_tol=1e-9)
+
+
+def test_export_refuses_an_object_space_na_with_the_object_at_infinity(tmp_path, capsys):
+    """lfsim takes an object-space NA with the object at infinity as an entrance pupil of 0 mm,
+    and its import refuses CODE V NAO and Zemax OBNA so (c8633df): the export, which wrote them,
+    refuses in one line and writes nothing. With the object at a finite distance the NA goes out
+    and comes back."""
+    src = tmp_path / "na.toml"
+    src.write_text((SCENES / "cooke_triplet.toml").read_text().replace('{ type = "epd", value = 10.0 }',
+                                                                        '{ type = "na", value = 0.1 }'))
+    z, s = tmp_path / "na.zmx", tmp_path / "na.seq"
+    for flag, out in (("--zmx", z), ("--seq", s)):
+        assert main(["export", str(src), flag, str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and str(src) in err[0] and "NA (0.1)" in err[0] and "distance = inf" in err[0] \
+            and "epd or fno" in err[0], err
+        assert not out.exists()
+    src.write_text(src.read_text().replace("distance = inf", "distance = 200.0"))
+    assert main(["export", str(src), "--zmx", str(z), "--seq", str(s)]) == 0
+    for p in (z, s):
+        assert import_lens(p).raw["system"]["aperture"] == {"type": "na", "value": 0.1}
 
 
 def test_a_virtual_surface_is_refused_on_export(tmp_path):

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ...optics.materials import MaterialError, lookup
+from ...optics.materials import LAMBDA_C, LAMBDA_D, LAMBDA_F, MaterialError, lookup
 from ..errors import DesignError
 
 #: A source object/thickness at or beyond this is "at infinity" (CODE V writes 1e10 .. 1e14).
@@ -111,19 +111,23 @@ class Imported:
 def material_value(file: str, line: int | None, name: str, catalogs: tuple[str, ...] = ()):
     """A glass name as a design-file material value, checked now (unknown names fail here).
 
-    ``catalogs``: the vendors the source file names (Zemax ``GCAT``), tried in order where the
-    bare name is in several catalogs.
+    ``catalogs``: the vendors the source file names (Zemax ``GCAT``), in order: as in Zemax, the
+    name is the glass of the first of them that holds it, spelled NAME_VENDOR unless the name
+    alone (lfsim's built-in table first) gives the same indices at the d, F and C lines. A name
+    none of them holds is looked up as it is.
     """
+    from .export import same_index
+
+    for cat in catalogs:
+        try:
+            lookup(f"{name}_{cat}")
+        except MaterialError:
+            continue
+        return name if same_index(name, f"{name}_{cat}", (LAMBDA_F, LAMBDA_D, LAMBDA_C)) else f"{name}_{cat}"
     try:
         lookup(name)
         return name
     except MaterialError as first:
-        for cat in catalogs:
-            try:
-                lookup(f"{name}_{cat}")
-                return f"{name}_{cat}"
-            except MaterialError:
-                continue
         raise LensFileError(file, line, f"glass {name!r}: {' '.join(str(first).split())}") from None
 
 

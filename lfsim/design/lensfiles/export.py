@@ -86,6 +86,11 @@ def plan(design, lenslet: tuple[int, int] | None = None) -> Plan:
             if not (0 <= lenslet[0] < a.m and 0 <= lenslet[1] < a.n):
                 raise ValueError(f"--lenslet {lenslet[0]},{lenslet[1]}: array {a.name!r} has lenslets "
                                  f"0..{a.m - 1}, 0..{a.n - 1}")
+    if system.aperture_type == "na" and math.isinf(system.object_distance):
+        raise ValueError(f"{design.path}: [system] aperture is an object-space NA ({system.aperture_value:g}) and "
+                         "[object] distance = inf: an object at infinity has no NA (lfsim takes it as an entrance "
+                         "pupil of 0 mm) and lfsim's import refuses CODE V NAO and Zemax OBNA so; give the "
+                         "aperture as epd or fno")
     frames, after = surface_frames(system)
     obj_raw = design.raw.get("object", {})
     object_glass = _material_value(obj_raw.get("material"), system.object_material)

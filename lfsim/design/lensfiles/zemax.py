@@ -18,6 +18,8 @@ Conventions (pinned by ``tests/test_lensfiles.py``):
   ``XDAT 3`` … the terms x, y, x², xy, y², x³, … (Zemax's order), like lfsim's ``xy``.
 * ``PARAXIAL``: ``PARM 1`` the focal length: an lfsim ideal lens.
 * ``GLAS ___BLANK 1 0 nd vd``: a model glass {nd, vd}; vd = 0 a constant index.
+* ``GLAS name``: as in Zemax, the glass of the first ``GCAT`` vendor that has the name; the
+  writer lists the vendors so that each name is taken from the one with the design's indices.
 """
 
 from __future__ import annotations
@@ -432,31 +434,59 @@ def _glass(file, line, g, gcat):
 
 
 # --------------------------------------------------------------------- writer
-def zemax_glass(name: str) -> tuple[str, str | None]:
-    """A glass name as a Zemax catalog spells it, and its vendor: ``NSSK2_SCHOTT`` →
-    ``("N-SSK2", "SCHOTT")``; a name of lfsim's built-in table, or one no vendor catalog
-    holds, as is (the built-in glasses are read back first by that name)."""
-    from ...optics.glass_catalogs import resolve, split_vendor
-    from ...optics.materials import catalog
+def zemax_glass(name: str, wavelengths) -> tuple[str, str] | None:
+    """A glass as a Zemax catalog spells it, and the vendor whose glass of that name has the
+    indices of ``name`` at ``wavelengths``: ``SK16`` → ``("SK16", "HIKARI")``, ``NSSK2_SCHOTT``
+    → ``("N-SSK2", "SCHOTT")``; None where no vendor catalog holds it (PMMA, FUSED_SILICA)."""
+    from ...optics.glass_catalogs import index, name_key, split_vendor
+    from .export import same_index
 
-    if name.strip().upper() in catalog():
-        return name.strip(), None
-    try:
-        hit = resolve(name)
-    except ValueError:
-        hit = None
-    if hit is None:
-        return split_vendor(name)
-    vendor = split_vendor(hit[0])[1] or hit[1][1].split("-")[0].upper()
-    return hit[1][2], vendor
+    base, vendor = split_vendor(name)
+    for v, _, _, page in index().get(name_key(base), []):
+        if vendor in (None, v) and same_index(f"{page}_{v}", name, wavelengths):
+            return page, v
+    return None
 
 
-def _glass_line(g) -> str:
+def _catalog_glasses(plan) -> tuple[dict[str, str], list[str]]:
+    """Each named medium's Zemax spelling, and the GCAT vendors: those of the glasses used, each
+    before every other listed vendor that holds a glass of the same name (Zemax takes a GLAS name
+    from the first GCAT catalog that has it), else in the order of ``VENDORS``."""
+    from ...optics.glass_catalogs import VENDORS, index, name_key
+
+    used: dict[str, tuple[str, str, str]] = {}  # name: (where, page, vendor)
+    for where, g in [("the object space", plan.object_glass)] + [(f"surface {e.name}", e.glass)
+                                                                 for e in plan.entries if not e.mirror]:
+        if isinstance(g, str) and g not in used:
+            hit = zemax_glass(g, plan.system.wavelengths_nm)
+            if hit is None:
+                raise ValueError(f"{where}: material {g!r} is in no vendor catalog, so no Zemax GLAS name gives "
+                                 "its indices (a ___BLANK model glass has another dispersion); give the design a "
+                                 "vendor catalog glass or a model glass {nd, vd}")
+            used[g] = (where, *hit)
+    vendors = [v for v in VENDORS if any(u[2] == v for u in used.values())]
+    # the other listed vendors that hold a glass of the name: GCAT must list them after its own
+    later = {g: {w for w, *_ in index()[name_key(page)]} & set(vendors) - {v} for g, (_, page, v) in used.items()}
+    order: list[str] = []
+    while len(order) < len(vendors):
+        left = [v for v in vendors if v not in order]
+        free = [v for v in left if not any(v in later[g] and u[2] in left for g, u in used.items())]
+        if not free:
+            clash = [(w, g, page, v) for g, (w, page, v) in used.items() if v in left and later[g] & set(left)]
+            raise ValueError("; ".join(f"{w} {g!r} ({page} of {v})" for w, g, page, v in clash) + ": Zemax takes a "
+                             "GLAS name from the first GCAT catalog that has it, and no order of "
+                             f"{', '.join(dict.fromkeys(c[3] for c in clash))} gives each its own; use glasses of "
+                             "distinct names")
+        order.append(free[0])
+    return {g: u[1] for g, u in used.items()}, order
+
+
+def _glass_line(g, spell) -> str:
     if isinstance(g, dict):
         if "n" in g:
             return f"GLAS ___BLANK 1 0 {fmt(g['n'])} 0 0 0 0 0 0 0"
         return f"GLAS ___BLANK 1 0 {fmt(g['nd'])} {fmt(g['vd'])} 0 0 0 0 0 0"
-    return f"GLAS {zemax_glass(g)[0]} 0 0 0 0 0 0 0 0 0 0"
+    return f"GLAS {spell[g]} 0 0 0 0 0 0 0 0 0 0"
 
 
 def write_zmx(plan, title: str) -> str:
@@ -468,15 +498,10 @@ def write_zmx(plan, title: str) -> str:
         L.append(f"FNUM {fmt(sysd.aperture_value)} 0")
     else:
         L.append(f"OBNA {fmt(sysd.aperture_value)} 0")
-    vendors = []
     from ...optics.glass_catalogs import VENDORS
 
-    for e in plan.entries:
-        if isinstance(e.glass, str):
-            v = zemax_glass(e.glass)[1]
-            if v and v not in vendors:
-                vendors.append(v)
-    L.append("GCAT " + " ".join(vendors or list(VENDORS[:3])))
+    spell, gcat = _catalog_glasses(plan)
+    L.append("GCAT " + " ".join(gcat or VENDORS[:3]))
     wl = sysd.wavelengths_nm
     L.append(f"FTYP {0 if sysd.field_type == 'angle' else 1} 0 {len(sysd.fields)} {len(wl)} 0 0 0")
     L.append("XFLN " + " ".join("0" for _ in sysd.fields))
@@ -489,14 +514,14 @@ def write_zmx(plan, title: str) -> str:
     d = sysd.object_distance
     L += ["SURF 0", "  TYPE STANDARD", "  CURV 0.0", f"  DISZ {'INFINITY' if math.isinf(d) else fmt(d)}"]
     if plan.object_glass is not None:
-        L.append("  " + _glass_line(plan.object_glass))
+        L.append("  " + _glass_line(plan.object_glass, spell))
     for k, e in enumerate(plan.entries, 1):
         L.append(f"SURF {k}")
-        L += ["  " + x for x in _surface(e)]
+        L += ["  " + x for x in _surface(e, spell)]
     return "\n".join(L) + "\n"
 
 
-def _surface(e) -> list[str]:
+def _surface(e, spell) -> list[str]:
     out = [f'COMM {e.name}']
     if e.kind == "break":
         dx, dy, dz, tx, ty, tz = e.decenter or (0.0,) * 6
@@ -529,7 +554,7 @@ def _surface(e) -> list[str]:
     if e.mirror:
         out.append("GLAS MIRROR 0 0 0 0 0 0 0 0 0 0")
     elif e.glass is not None:
-        out.append(_glass_line(e.glass))
+        out.append(_glass_line(e.glass, spell))
     if e.conic:
         out.append(f"CONI {fmt(e.conic)}")
     if e.semi_diameter is not None:
