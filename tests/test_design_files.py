@@ -51,6 +51,11 @@ BAD = [
     ("radius = 20.0", 'radius = 20.0\narray = "mla"', "surfaces[0].array", "'mla'"),
     ('value = 4.0', 'value = -4.0', "system.aperture.value", "-4.0"),
     ('type = "epd"', 'type = "diameter"', "system.aperture.type", "'diameter'"),
+    # F/0 would be an infinite pupil (first order took it as 0 mm); an NA at or above the object index
+    ('aperture = { type = "epd", value = 4.0 }', 'aperture = { type = "fno", value = 0 }',
+     "system.aperture.value", "0.0"),
+    ('aperture = { type = "epd", value = 4.0 }', 'aperture = { type = "na", value = 1.0 }\n[object]\ndistance = 50.0',
+     "system.aperture.value", "1.0"),
     ("[system]", "[system]\nwavelengths_nm = [50.0]", "system.wavelengths_nm", "[50.0]"),
     ("[system]", "[object]\ndistance = -5\n[system]", "object.distance", "-5.0"),
 ]
@@ -146,3 +151,29 @@ def test_content_scene_given_as_a_design_is_named_as_such(scenes):
 
     with pytest.raises(DesignError, match=r"fig9_wall\.toml: objects .*content scene.*--content"):
         lfsim.load(scenes / "fig9_wall.toml")
+
+
+@pytest.mark.parametrize("distance", ["distance = inf", 'distance = "inf"', ""])
+def test_object_space_na_needs_a_finite_object(tmp_path, capsys, scenes, distance):
+    """An object-space NA sets the pupil through the object distance: with the object at infinity
+    (inf, "inf", or [object] distance left out) first order took it as an entrance pupil of 0 mm
+    and every metric was meaningless. The loader refuses it in one line naming the file, the key
+    system.aperture and its value (the lens-file importers and exporters refuse it too); at a
+    finite distance the same NA loads with a pupil."""
+    text = (scenes / "asphere_singlet.toml").read_text()
+    assert 'aperture = { type = "epd", value = 10.0 }' in text and "\ndistance = inf\n" in text
+    text = text.replace('aperture = { type = "epd", value = 10.0 }', 'aperture = { type = "na", value = 0.1 }')
+    p = tmp_path / "na_at_infinity.toml"
+    p.write_text(text.replace("distance = inf", distance, 1))
+    with pytest.raises(DesignError) as e:
+        lfsim.load(p)
+    msg = str(e.value)
+    assert e.value.key == "system.aperture" and e.value.value == {"type": "na", "value": 0.1}
+    assert "\n" not in msg and msg.startswith(f"{p}: system.aperture = {{'type': 'na', 'value': 0.1}}: "), msg
+    assert "object-space NA (0.1) needs a finite object" in msg and "epd or fno" in msg, msg
+    assert main(["first-order", str(p)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(p) in err and "system.aperture" in err and "Traceback" not in err, err
+    p.write_text(text.replace("distance = inf", "distance = 500.0", 1))
+    fo = lfsim.load(p).first_order(method="paraxial")
+    assert fo.entrance_pupil_diameter > 0

@@ -411,6 +411,14 @@ def system_from_dict(data: dict, file: str = "<dict>") -> System:
     system.aperture_value = ctx.number(ap, "value", "system.aperture", nonneg=True)
     if system.aperture_type == "na" and not system.aperture_value < 1.0 * system.object_material.nd:
         raise ctx.err("system.aperture.value", system.aperture_value, "an NA must be below the object index")
+    if system.aperture_type == "fno" and not system.aperture_value > 0:
+        # F/0 is an infinite pupil; first order would take it as an entrance pupil of 0 mm
+        raise ctx.err("system.aperture.value", system.aperture_value, "an f-number must be > 0")
+    if system.aperture_type == "na" and math.isinf(system.object_distance):
+        # the NA sets the pupil through the object distance: first order would take 0 mm
+        raise ctx.err("system.aperture", ap, f"an object-space NA ({system.aperture_value:g}) needs a finite "
+                      "object, and [object] distance = inf (the default when absent) would give an entrance "
+                      "pupil of 0 mm; give the aperture as epd or fno, or put the object at a finite distance")
 
     fld = ctx.table(sysd, "field", "system", {"type": "angle", "values": [0.0]})
     ctx.no_unknown(fld, {"type", "values"}, "system.field")
