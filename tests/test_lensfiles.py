@@ -516,10 +516,10 @@ def test_rayoptics_reads_exported_built_in_glasses(glasses, fmt, tmp_path):
 
 
 def test_export_refuses_an_object_space_na_with_the_object_at_infinity(tmp_path, capsys):
-    """lfsim takes an object-space NA with the object at infinity as an entrance pupil of 0 mm,
-    and its import refuses CODE V NAO and Zemax OBNA so (c8633df): the export, which wrote them,
-    refuses in one line and writes nothing. With the object at a finite distance the NA goes out
-    and comes back."""
+    """An object-space NA with the object at infinity gives no pupil: the design loader refuses
+    it (so the export never writes CODE V NAO or Zemax OBNA, which the importers refuse too), in
+    one line, exit 2, nothing written. With the object at a finite distance the NA goes out and
+    comes back."""
     src = tmp_path / "na.toml"
     src.write_text((SCENES / "cooke_triplet.toml").read_text().replace('{ type = "epd", value = 10.0 }',
                                                                         '{ type = "na", value = 0.1 }'))
