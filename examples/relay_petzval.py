@@ -101,8 +101,9 @@ def _curvature(s: dict) -> float:
     return float(s["curvature"] if "curvature" in s else 1.0 / s["radius"])
 
 
-def read_relay(raw: dict, lam: float):
-    """(Relay, the tunable lens's power at each CDP state in mm⁻¹) of a design."""
+def read_relay(raw: dict, lam: float, powers=None):
+    """(Relay, the tunable lens's power at each CDP state in mm⁻¹) of a design; ``powers``
+    (diopters) where the design lists none (they are then solved: ``lfsim ini`` gives them)."""
     S = raw["surfaces"]
     names = [s.get("name") for s in S]
     ia, it = names.index("AA"), names.index(raw["ini"]["tunable"]["surface"])
@@ -118,7 +119,7 @@ def read_relay(raw: dict, lam: float):
     inside = set(range(ia + 1, idx[3] + 2)) - {it, *idx, *(j + 1 for j in idx)}
     if inside:
         raise ValueError(f"surface {names[min(inside)]!r} inside the relay: only four singlets and the tunable lens")
-    phis = np.asarray(raw["ini"]["tunable"]["power_diopters"], dtype=np.float64) * 1e-3
+    phis = np.asarray(raw["ini"]["tunable"].get("power_diopters", powers), dtype=np.float64) * 1e-3
     return Relay(gaps, c1, c2, t, n), phis
 
 
@@ -417,7 +418,8 @@ def write_variant(raw: dict, r: Relay, glasses, phis, ref_length: float, semi_ma
     for i, g in zip((ia, idx[0] + 1, idx[1] + 1, it, idx[2] + 1, idx[3] + 1), r.gaps):
         S[i]["thickness"] = float(g)
     S[it]["focal_length"] = float(1.0 / phis[k1])
-    out["ini"]["tunable"]["power_diopters"] = [float(p * 1e3) for p in phis]
+    if "power_diopters" in out["ini"]["tunable"]:  # else solved again, to the same powers
+        out["ini"]["tunable"]["power_diopters"] = [float(p * 1e3) for p in phis]
     _shift_after_relay(out, r.length - ref_length)
     value = {f"{s_['name']}.curvature": s_.get("curvature") for s_ in S if "name" in s_}
     value |= {f"{s_['name']}.thickness": s_.get("thickness") for s_ in S if "name" in s_}
@@ -467,12 +469,14 @@ def main(argv=None) -> int:
     path = Path(args.design)
     raw = tomllib.loads(path.read_text())
     lam = float(raw.get("system", {}).get("primary_wavelength_nm", 587.5618))
-    ref, phis = read_relay(raw, lam)
     from lfsim.design.design import load
     from lfsim.ini.model import IniModel
     from lfsim.ini.package import package
 
-    track = float(package(IniModel(load(path)))["track_mm"])
+    model = IniModel(load(path))
+    ref, phis = read_relay(raw, lam, [model.state(k).as_dict()["tunable_power_diopters"]
+                                      for k in range(len(model.depths))])
+    track = float(package(model)["track_mm"])
     rays, marginal = bundle(path)
     assignments = [tuple(g.strip() for g in a.split(",")) for a in (args.glasses or [
         "N-LAK22,N-LAK22,N-LAK22,N-LAK22", "N-LASF31A,N-BK7,N-LASF31A,N-LASF31A"])]
