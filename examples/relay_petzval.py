@@ -437,14 +437,17 @@ def write_variant(raw: dict, r: Relay, glasses, phis, ref_length: float, semi_ma
 
 # ----------------------------------------------------------------- command line
 
-def search(S: Search, glasses, lam: float, starts: int, seed: int):
-    """The least field curvature over ``starts`` SLSQP runs (the reference relay in these glasses,
-    then random perturbations of it): ``(x, objective, feasible runs)`` or None."""
+def search(S: Search, glasses, lam: float, starts: int, seed: int, warm=()):
+    """The least field curvature over SLSQP runs from ``warm`` (e.g. the best relay under a
+    tighter limit, feasible under this one) and ``starts`` more (the reference relay in these
+    glasses, then random perturbations of it): ``(x, objective, feasible runs)`` or None."""
     n = np.array([float(lookup(g).index(lam)) for g in glasses])
     rng = np.random.default_rng(seed)
     best, feasible = None, 0
-    for s in range(starts):
-        x, P, ok = S.solve(n, S.start(n, rng, spread=1.0 if s else 0.0))
+    x0s = [np.asarray(w, dtype=np.float64) for w in warm]
+    x0s += [S.start(n, rng, spread=1.0 if s else 0.0) for s in range(starts)]
+    for x0 in x0s:
+        x, P, ok = S.solve(n, x0)
         feasible += ok
         if ok and (best is None or abs(P) < abs(best[1])):
             best = (x, P)
@@ -488,15 +491,19 @@ def main(argv=None) -> int:
     limits = [math.inf if v.strip().lower() == "none" else float(v) for v in args.track_limits.split(",")]
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    rows = []
+    rows, best = [], {}
     print(f"{path.name}: relay Petzval sum {ref.petzval():.4f} /mm, relay length {ref.length:.2f} mm, "
           f"track {track:.2f} mm")
-    for lim, glasses in itertools.product(limits, assignments):
+    for glasses, lim in itertools.product(assignments, sorted(limits)):
         rules = Rules(clear_diameter=args.clear_diameter, max_length=ref.length + (lim - track))
         S = Search(ref, phis, rays, marginal, rules)
-        found = search(S, glasses, lam, args.starts, args.seed)
+        warm = [best[glasses]] if glasses in best else []
+        found = search(S, glasses, lam, args.starts, args.seed, warm=warm)
+        if found is not None:
+            best[glasses] = found[0]
         row = {"track_limit_mm": None if math.isinf(lim) else lim, "glasses": list(glasses),
-               "clear_diameter_mm": args.clear_diameter, "starts": args.starts}
+               "clear_diameter_mm": args.clear_diameter, "starts": args.starts,
+               "warm_started": bool(warm)}
         if found is None:
             row.update(field_curvature=None, feasible_starts=0)
             print(f"track <= {lim:g} mm, {','.join(glasses)}: no feasible relay in {args.starts} starts")
