@@ -549,15 +549,16 @@ def _plot(doc: dict, path: Path) -> None:
 
     fig, ax = plt.subplots(figsize=(6, 4))
     for glasses in sorted({tuple(r["glasses"]) for r in doc["rows"]}):
-        pts = [(r["track_mm"], r["field_curvature"]) for r in doc["rows"]
-               if tuple(r["glasses"]) == glasses and r["field_curvature"] is not None]
+        pts = [(r["track_limit_mm"], r["field_curvature"]) for r in doc["rows"]
+               if tuple(r["glasses"]) == glasses and r["field_curvature"] is not None
+               and r["track_limit_mm"] is not None]
         if pts:
             ax.plot(*zip(*sorted(pts)), "o-", label=", ".join(glasses))
     ref = doc["reference"]
     ax.plot([ref["track_mm"]], [ref["field_curvature"]], "ks", label="the design's relay")
     ax.axhline(0.0, color="0.6", lw=0.8)
-    ax.set_xlabel("track of the best relay found (mm)")
-    ax.set_ylabel("field curvature ((S_III+S_IV)² + (3S_III+S_IV)²) / S_IV,0²")
+    ax.set_xlabel("track limit (mm)")
+    ax.set_ylabel("relay field curvature (shipped S_IV² = 1)")
     ax.set_title("Least field curvature of four singlets at the same first order", fontsize=9)
     ax.legend(fontsize=7)
     fig.tight_layout()
