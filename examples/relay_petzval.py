@@ -1,11 +1,11 @@
 """How flat can four singlets make the relay's field, at a design's first order? A paraxial search.
 
 The wearable design's relay (four spherical singlets and a tunable lens between
-the lenslet array's aperture plane ``AA`` and the prism) bends its field: its
-Petzval sum, Σ c·(n′ − n)/(n·n′) over the singlets' faces, is what the prism
-has to live with. This script asks how small that sum can be made while the
-relay keeps **exactly the same first order**, so that the InI first-order
-model (CDP at each state, EI pitch, angular pixel, FOV) is unchanged:
+the lenslet array's aperture plane ``AA`` and the prism) curves its field, and
+the prism has to live with that. This script asks how flat the relay's field
+can be made while the relay keeps **exactly the same first order**, so that the
+InI first-order model (CDP at each state, EI pitch, angular pixel, FOV) is
+unchanged:
 
 * the y–ν matrix ``M`` from the plane of ``AA`` to a reference plane behind
   the relay equals the design's at the 1 D state, and its derivative in the
@@ -16,33 +16,41 @@ model (CDP at each state, EI pitch, angular pixel, FOV) is unchanged:
   axis with the relay's end, so the track changes by the relay's change of
   length.
 
+The objective is the relay's third-order field curvature, sagittal and
+tangential: ``(S_III + S_IV)² + (3·S_III + S_IV)²`` relative to the design's
+own Petzval term ``S_IV²`` (Seidel sums of :func:`seidel`), with spherical
+aberration and coma held small (``|S_I|, |S_II| ≤ 1e-3`` mm). The Petzval sum
+alone is the wrong target: minimized on its own it reaches 0 in the package
+with lenses whose astigmatism is tens of times the design's.
+
 Each singlet has two curvatures, a centre thickness and a glass from
-``--glasses``; the six air gaps are free. The rules are those of the package
-(all lengths in mm):
+``--glasses``; the six air gaps are free. The rules (:class:`Rules`, mm) are
+the package's:
 
 * every face's paraxial footprint of the design's own ray bundle (the real rays
   of ``lfsim.ini.package.ray_set`` at ``AA``: corner, edge and centre lenslets,
   EI corners, edges and centres, chief and marginal rays, every CDP state)
   within ``--clear-diameter``/2, and the tunable lens's within the design's own
   (paraxial) footprint there, which fits its 10 mm aperture;
-* surface slope ``|c|·h ≤ --max-slope`` at the lens's semi-diameter ``h``
-  (the footprint plus ``--margin``);
-* glass at least ``--min-glass`` thick at the centre and the edge; air gaps at
-  least ``--min-air`` at the centre and the edge; ``--min-back`` from the last
+* surface slope ``|c|·h ≤ 0.7`` at the lens's semi-diameter ``h`` (the
+  footprint plus 0.3 mm);
+* glass and air at least 1 mm at the centre and the edge; 16 mm from the last
   face to the reference plane (room for the prism's entrance);
-* the relay's length ≤ the design's + (``track`` limit − the design's track).
+* the relay's length ≤ the design's + (track limit − the design's track).
 
-The search (SLSQP from the design's own relay and from random starts, for each
-assignment of glasses) returns the least Petzval sum per track limit (and per
-clear diameter). It is paraxial: it says what the first order and the parts
-allow, not what the optimizer will make of it. ``--write DIR`` writes the best
-relay of each limit as a design file (the original with the relay swapped, the
-prism moved), ready for ``lfsim optimize`` and ``examples/relay_variants.py``'s
-comparison. Run::
+For each assignment of glasses and each track limit (tightest first), SLSQP
+starts from the best relay of the next tighter limit, the design's relay in
+these glasses (each lens's matrix kept) and random perturbations of it, and
+keeps the least field curvature. It is paraxial: it says what the first order
+and the parts allow, not what the optimizer will make of it. ``--write``
+writes the best relay of each limit as a design file beside the JSON (the
+original with the relay swapped and the prism moved), ready for ``lfsim
+optimize``. Run::
 
     python examples/relay_petzval.py --out DIR [--track-limits 150,175,200,250]
 
-It prints a table and writes ``relay_petzval.json`` and ``relay_petzval.png``.
+It prints one line per limit and glass assignment and writes
+``relay_petzval.json`` and ``relay_petzval.png``.
 """
 
 from __future__ import annotations
@@ -414,7 +422,7 @@ def write_variant(raw: dict, r: Relay, glasses, phis, ref_length: float, semi_ma
         a["thickness"], a["material"] = float(r.t[j]), glasses[j]
         if semi is not None:
             a["semi_diameter"] = b["semi_diameter"] = float(min(semi_max, semi[j] + semi_margin))
-        a["comment"] = f"relay lens {j + 1}, {glasses[j]} (relay of least Petzval sum, examples/relay_petzval.py)"
+        a["comment"] = f"relay lens {j + 1}, {glasses[j]} (relay of least field curvature, examples/relay_petzval.py)"
     for i, g in zip((ia, idx[0] + 1, idx[1] + 1, it, idx[2] + 1, idx[3] + 1), r.gaps):
         S[i]["thickness"] = float(g)
     S[it]["focal_length"] = float(1.0 / phis[k1])
@@ -431,7 +439,7 @@ def write_variant(raw: dict, r: Relay, glasses, phis, ref_length: float, semi_ma
                 v["min"] = x - 0.25 * abs(x)
             if "max" in v and x > v["max"]:
                 v["max"] = x + 0.25 * abs(x)
-    out["name"] = f"{raw.get('name', 'design')} (relay of least Petzval sum: {', '.join(glasses)})"
+    out["name"] = f"{raw.get('name', 'design')} (relay of least field curvature: {', '.join(glasses)})"
     return out
 
 
@@ -456,39 +464,56 @@ def search(S: Search, glasses, lam: float, starts: int, seed: int, warm=()):
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--design", default=str(ROOT / "scenes" / "ini_wearable_optimized.toml"))
+    ap.add_argument("--design", default=str(ROOT / "scenes" / "ini_wearable_optimized.toml"),
+                    help="an InI design with AA, two singlets, the tunable lens, two singlets "
+                         "(default: %(default)s)")
     ap.add_argument("--out", required=True, help="folder for relay_petzval.json / .png and the written designs")
     ap.add_argument("--track-limits", default="150,175,200",
-                    help="track limits (mm), comma separated; 'none' for no limit")
+                    help="track limits (mm), comma separated; 'none' for no limit (default: %(default)s)")
     ap.add_argument("--glasses", action="append",
                     help="four glasses, comma separated, one assignment per flag (default: all N-LAK22, and "
-                         "N-LASF31A,N-BK7,N-LASF31A,N-LASF31A)")
-    ap.add_argument("--clear-diameter", type=float, default=23.2, help="largest clear diameter (mm)")
-    ap.add_argument("--starts", type=int, default=10)
-    ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--write", action="store_true", help="write each best relay as a design file")
+                         "all N-LASF31A)")
+    ap.add_argument("--clear-diameter", type=float, default=23.2,
+                    help="largest clear diameter (mm; default: %(default)s, 25.4 mm parts)")
+    ap.add_argument("--starts", type=int, default=10,
+                    help="SLSQP runs per limit and glasses besides the warm start (default: %(default)s)")
+    ap.add_argument("--seed", type=int, default=1, help="seed of the random starts (default: %(default)s)")
+    ap.add_argument("--write", action="store_true", help="write each best relay as a design file in --out")
     args = ap.parse_args(argv)
-
-    path = Path(args.design)
-    raw = tomllib.loads(path.read_text())
-    lam = float(raw.get("system", {}).get("primary_wavelength_nm", 587.5618))
-    from lfsim.design.design import load
-    from lfsim.ini.model import IniModel
-    from lfsim.ini.package import package
-
-    model = IniModel(load(path))
-    ref, phis = read_relay(raw, lam, [model.state(k).as_dict()["tunable_power_diopters"]
-                                      for k in range(len(model.depths))])
-    track = float(package(model)["track_mm"])
-    rays, marginal = bundle(path)
+    if args.starts < 1:
+        ap.error(f"--starts {args.starts}: at least 1")
+    try:
+        limits = [math.inf if v.strip().lower() == "none" else float(v) for v in args.track_limits.split(",")]
+    except ValueError:
+        ap.error(f"--track-limits {args.track_limits!r}: numbers in mm, comma separated, or 'none'")
     assignments = [tuple(g.strip() for g in a.split(",")) for a in (args.glasses or [
-        "N-LAK22,N-LAK22,N-LAK22,N-LAK22", "N-LASF31A,N-BK7,N-LASF31A,N-LASF31A"])]
+        "N-LAK22,N-LAK22,N-LAK22,N-LAK22", "N-LASF31A,N-LASF31A,N-LASF31A,N-LASF31A"])]
     for a in assignments:
         if len(a) != 4:
             ap.error(f"--glasses {','.join(a)!r}: four glasses, one per singlet")
         for g in a:
-            lookup(g)
-    limits = [math.inf if v.strip().lower() == "none" else float(v) for v in args.track_limits.split(",")]
+            try:
+                lookup(g)
+            except ValueError as e:
+                ap.error(f"--glasses {','.join(a)!r}: {e}")
+
+    from lfsim.design.design import load
+    from lfsim.ini.model import IniModel
+    from lfsim.ini.package import package
+
+    path = Path(args.design)
+    try:
+        raw = tomllib.loads(path.read_text())
+        model = IniModel(load(path))
+        lam = float(model.lam)
+        ref, phis = read_relay(raw, lam, [model.state(k).as_dict()["tunable_power_diopters"]
+                                          for k in range(len(model.depths))])
+        track = float(package(model)["track_mm"])
+        rays, marginal = bundle(path)
+    except (OSError, tomllib.TOMLDecodeError, ValueError, KeyError) as e:
+        msg = str(e) if str(e).startswith(str(path)) else f"{path}: {e}"
+        print(f"relay_petzval.py: error: {msg}", file=sys.stderr)
+        return 2
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rows, best = [], {}
@@ -505,8 +530,8 @@ def main(argv=None) -> int:
                "clear_diameter_mm": args.clear_diameter, "starts": args.starts,
                "warm_started": bool(warm)}
         if found is None:
-            row.update(field_curvature=None, feasible_starts=0)
-            print(f"track <= {lim:g} mm, {','.join(glasses)}: no feasible relay in {args.starts} starts")
+            row.update(field_curvature=None, feasible_runs=0)
+            print(f"track <= {lim:g} mm, {','.join(glasses)}: no feasible relay in {args.starts + len(warm)} runs")
         else:
             x, fc, nf = found
             fc, nf = float(fc), int(nf)
@@ -515,7 +540,7 @@ def main(argv=None) -> int:
             face, tun = S.semi_diameters(x, r.n)
             powers, k = S.state_powers(x, r.n)
             semi = np.maximum(face[0::2], face[1::2]) + S.rules.margin
-            row.update(field_curvature=fc, petzval_per_mm=P, feasible_starts=nf,
+            row.update(field_curvature=fc, petzval_per_mm=P, feasible_runs=nf,
                        seidel=seidel(r, x[18], S.marginal, S.chief).tolist(), track_mm=track + r.length - ref.length,
                        relay_length_mm=r.length, gaps_mm=r.gaps.tolist(), c1=r.c1.tolist(), c2=r.c2.tolist(),
                        thickness_mm=r.t.tolist(), semi_diameter_mm=semi.tolist(),
@@ -524,7 +549,7 @@ def main(argv=None) -> int:
             print(f"track <= {lim:g} mm, {','.join(glasses)}: field curvature {fc:.3f}, Petzval {P:.4f} /mm "
                   f"(track {row['track_mm']:.2f} mm, "
                   f"lens powers {', '.join(f'{v:.1f}' for v in row['lens_power_diopters'])} D; "
-                  f"{nf}/{args.starts} starts feasible)")
+                  f"{nf} of {args.starts + len(warm)} runs feasible)")
             if args.write:
                 tag = f"track{'none' if math.isinf(lim) else f'{lim:g}'}_{'-'.join(glasses)}"
                 p = out / f"{tag}.toml"
@@ -537,7 +562,8 @@ def main(argv=None) -> int:
         "seidel": S0.seidel0.tolist(), "relay_length_mm": ref.length, "track_mm": track}, "rows": rows}
     (out / "relay_petzval.json").write_text(json.dumps(doc, indent=2))
     _plot(doc, out / "relay_petzval.png")
-    print(f"wrote {out / 'relay_petzval.json'}, {out / 'relay_petzval.png'}")
+    written = [r["design"] for r in rows if "design" in r]
+    print(f"wrote {', '.join([str(out / 'relay_petzval.json'), str(out / 'relay_petzval.png'), *written])}")
     return 0
 
 
