@@ -100,6 +100,20 @@ def test_malformed_toml_and_missing_file(tmp_path, capsys):
     assert "file not found" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("name, encoding", [("lens.seq", "utf-8"), ("lens.zmx", "utf-16")])
+def test_a_lens_file_given_as_a_design_points_to_import(tmp_path, capsys, name, encoding):
+    p = tmp_path / name
+    p.write_text("RDM\nSO 0 1e11\nS 0.02 5 NBK7_SCHOTT\nSI\n", encoding=encoding)
+    assert main(["first-order", str(p)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"lfsim import {name}" in err and "Traceback" not in err
+    toml = tmp_path / "design.toml"
+    toml.write_text("[[surfaces]\n")
+    with pytest.raises(DesignError) as e:
+        lfsim.load(toml)
+    assert "lfsim import" not in str(e.value)
+
+
 def test_material_kinds(make_design):
     d = make_design(GOOD.replace('material = "N-BK7"', "material = { nd = 1.5168, vd = 64.17 }"))
     m = d.surfaces[0].material

@@ -137,16 +137,19 @@ class _Ctx:
 def read_toml(path: str | Path) -> dict:
     """Parse a TOML file, turning I/O and syntax problems into :class:`DesignError`."""
     p = Path(path)
+    # a CODE V or Zemax file given where a design is expected: say how to make one of it
+    hint = (f" ({p.suffix} is a lens file: `lfsim import {p.name} --out DESIGN.toml` makes a design of it)"
+            if p.suffix.lower() in (".seq", ".zmx") else "")
     try:
         text = p.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise DesignError(str(p), "", MISSING, "file not found") from None
     except (OSError, UnicodeDecodeError) as e:
-        raise DesignError(str(p), "", MISSING, f"cannot read file ({e.__class__.__name__}: {e})") from None
+        raise DesignError(str(p), "", MISSING, f"cannot read file ({e.__class__.__name__}: {e}){hint}") from None
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
-        raise DesignError(str(p), "", MISSING, f"invalid TOML: {e}") from None
+        raise DesignError(str(p), "", MISSING, f"invalid TOML: {e}{hint}") from None
 
 
 def load_system(path: str | Path) -> tuple[System, dict]:
