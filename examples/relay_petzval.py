@@ -67,12 +67,12 @@ from pathlib import Path
 
 import numpy as np
 import tomli_w
+from relay_variants import LENSES, _curvature, _shift_after_relay  # examples/, beside this script
 from scipy.optimize import minimize
 
 from lfsim.optics.materials import lookup
 
 ROOT = Path(__file__).resolve().parents[1]
-LENSES = ("R1a", "R2a", "R3a", "R4a")
 DEFAULT_GLASSES = ("N-LAK22", "N-BK7", "N-SF11", "N-LASF31A")
 
 
@@ -103,10 +103,6 @@ class Relay:
     def unpack(cls, v, n) -> Relay:
         v = np.asarray(v, dtype=np.float64)
         return cls(v[:6].copy(), v[6:10].copy(), v[10:14].copy(), v[14:18].copy(), np.asarray(n, dtype=np.float64))
-
-
-def _curvature(s: dict) -> float:
-    return float(s["curvature"] if "curvature" in s else 1.0 / s["radius"])
 
 
 def read_relay(raw: dict, lam: float, powers=None):
@@ -405,8 +401,6 @@ def write_variant(raw: dict, r: Relay, glasses, phis, ref_length: float, semi_ma
     """``raw`` with its relay replaced by ``r`` (glasses by name), the tunable lens's powers
     ``phis`` (mm⁻¹, per CDP state), everything behind the relay moved along the axis by the
     change of length, and the optimizer's bounds on relay variables widened to hold the new values."""
-    from relay_variants import _shift_after_relay
-
     out = copy.deepcopy(raw)
     S = out["surfaces"]
     names = [s.get("name") for s in S]
