@@ -33,7 +33,8 @@ the package's:
   within ``--clear-diameter``/2, and the tunable lens's within the design's own
   (paraxial) footprint there, which fits its 10 mm aperture;
 * surface slope ``|c|·h ≤ 0.7`` at the lens's semi-diameter ``h`` (the
-  footprint plus 0.3 mm);
+  footprint plus 0.3 mm, at most half the clear diameter: the semi-diameter a
+  written design gets, so its edge thickness is the one checked here);
 * glass and air at least 1 mm at the centre and the edge; 16 mm from the last
   face to the reference plane (room for the prism's entrance);
 * the relay's length ≤ the design's + (track limit − the design's track).
@@ -339,12 +340,18 @@ class Search:
         face, tun = footprints(r, phis, self.rays)
         return face, tun
 
+    def lens_semi_diameters(self, face):
+        """Each lens's semi-diameter: its larger face footprint plus ``margin``, at most half the
+        clear diameter; the rules hold at it and :func:`write_variant` writes it."""
+        R = self.rules
+        return np.minimum(R.clear_diameter / 2.0, np.maximum(face[0::2], face[1::2]) + R.margin)
+
     def inequalities(self, x, n):
         """Every rule as ``g ≥ 0``."""
         R, r = self.rules, self._relay(x, n)
         face, tun = self.semi_diameters(x, n)
         phis, _ = self.state_powers(x, n)
-        a = np.maximum(face[0::2], face[1::2]) + R.margin  # each lens's semi-diameter
+        a = self.lens_semi_diameters(face)
         g = [R.clear_diameter / 2.0 - face, np.array([self.tun0 - tun])]
         g.append(R.max_slope ** 2 - (r.c1 * a) ** 2)
         g.append(R.max_slope ** 2 - (r.c2 * a) ** 2)
@@ -396,8 +403,8 @@ class Search:
 
 # ----------------------------------------------------------------- a design with the found relay
 
-def write_variant(raw: dict, r: Relay, glasses, phis, ref_length: float, semi_margin: float = 1.0,
-                  semi_max: float = 11.6, semi: np.ndarray | None = None) -> dict:
+def write_variant(raw: dict, r: Relay, glasses, phis, ref_length: float,
+                  semi: np.ndarray | None = None) -> dict:
     """``raw`` with its relay replaced by ``r`` (glasses by name), the tunable lens's powers
     ``phis`` (mm⁻¹, per CDP state), everything behind the relay moved along the axis by the
     change of length, and the optimizer's bounds on relay variables widened to hold the new values."""
@@ -415,7 +422,7 @@ def write_variant(raw: dict, r: Relay, glasses, phis, ref_length: float, semi_ma
         a["curvature"], b["curvature"] = float(r.c1[j]), float(r.c2[j])
         a["thickness"], a["material"] = float(r.t[j]), glasses[j]
         if semi is not None:
-            a["semi_diameter"] = b["semi_diameter"] = float(min(semi_max, semi[j] + semi_margin))
+            a["semi_diameter"] = b["semi_diameter"] = float(semi[j])
         a["comment"] = f"relay lens {j + 1}, {glasses[j]} (relay of least field curvature, examples/relay_petzval.py)"
     for i, g in zip((ia, idx[0] + 1, idx[1] + 1, it, idx[2] + 1, idx[3] + 1), r.gaps):
         S[i]["thickness"] = float(g)
@@ -533,7 +540,7 @@ def main(argv=None) -> int:
             P = r.petzval()
             face, tun = S.semi_diameters(x, r.n)
             powers, k = S.state_powers(x, r.n)
-            semi = np.maximum(face[0::2], face[1::2]) + S.rules.margin
+            semi = S.lens_semi_diameters(face)
             row.update(field_curvature=fc, petzval_per_mm=P, feasible_runs=nf,
                        seidel=seidel(r, x[18], S.marginal, S.chief).tolist(), track_mm=track + r.length - ref.length,
                        relay_length_mm=r.length, gaps_mm=r.gaps.tolist(), c1=r.c1.tolist(), c2=r.c2.tolist(),

@@ -13,6 +13,8 @@ import numpy as np
 import pytest
 import tomli_w
 
+import lfsim
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "examples"))  # relay_petzval imports relay_variants
 spec = importlib.util.spec_from_file_location("relay_petzval", ROOT / "examples" / "relay_petzval.py")
@@ -68,10 +70,20 @@ def test_the_design_relay_obeys_the_rules_and_a_found_relay_keeps_the_first_orde
     x, fc, ok = S.solve(n, S.start(n), maxiter=100)
     assert ok and fc < S.field_curvature(x0, ref.n)
     r = S._relay(x, n)
-    semi = np.max(np.reshape(S.semi_diameters(x, n)[0], (4, 2)), axis=1) + S.rules.margin
+    semi = S.lens_semi_diameters(S.semi_diameters(x, n)[0])
     p = tmp_path / "found.toml"
     p.write_text(tomli_w.dumps(rp.write_variant(raw, r, ["N-LASF31A"] * 4, S.state_powers(x, n)[0], ref.length,
                                                 semi=semi)))
+    # the written lenses are as thick at their written rims as the rules say (the package's own
+    # edge thickness, sags from the tracer's surface model)
+    written = tomllib.loads(p.read_text())["surfaces"]
+    from lfsim.ini.model import IniModel
+    from lfsim.ini.package import package
+
+    pk = package(IniModel(lfsim.load(p)))
+    assert [s["semi_diameter"] for s in written if s.get("name") in rp.LENSES] == pytest.approx(list(semi), abs=1e-12)
+    assert pk["min_edge_thickness_mm"] >= S.rules.min_glass - 1e-6
+    assert pk["max_clear_diameter_mm"] <= S.rules.clear_diameter + 1e-9
     from relay_variants import first_order
 
     for a, b in zip(first_order(path), first_order(p)):
