@@ -54,7 +54,7 @@ def test_seidel_sums_of_a_thin_lens_match_welford(curved_first):
 
 
 def test_the_design_relay_obeys_the_rules_and_a_found_relay_keeps_the_first_order(tmp_path):
-    path = ROOT / "examples" / "designs" / "ini_wearable_nlak22_optimized.toml"
+    path = ROOT / "scenes" / "ini_wearable_optimized.toml"
     raw = tomllib.loads(path.read_text())
     lam = raw["system"]["primary_wavelength_nm"]
     ref, phis = rp.read_relay(raw, lam)

@@ -22,7 +22,7 @@ KEYS = ("tunable_power_diopters", "cdp_diopters_x", "cdp_diopters_y", "p_ei", "d
 @pytest.mark.parametrize("variant", ["ideal", "glass"])
 def test_a_relay_variant_keeps_the_first_order(variant, tmp_path):
     # the start design: no tunable powers listed, so they are solved for each variant
-    path = ROOT / "examples" / "designs" / "ini_wearable_nlak22.toml"
+    path = ROOT / "scenes" / "ini_wearable.toml"
     raw = tomllib.loads(path.read_text())
     tab = rv.ideal_relay(raw) if variant == "ideal" else rv.reglass_relay(raw, "N-LASF31A")
     p = tmp_path / f"{variant}.toml"
@@ -35,7 +35,7 @@ def test_a_relay_variant_keeps_the_first_order(variant, tmp_path):
 
 
 def test_a_relay_that_is_not_a_singlet_is_refused():
-    raw = tomllib.loads((ROOT / "examples" / "designs" / "ini_wearable_nlak22.toml").read_text())
+    raw = tomllib.loads((ROOT / "scenes" / "ini_wearable.toml").read_text())
     with pytest.raises(ValueError, match="R1b"):
         rv.ideal_relay(raw, ("R1b",))
     with pytest.raises(ValueError, match="no surface"):
