@@ -37,7 +37,13 @@ the package's:
   written design gets, so its edge thickness is the one checked here);
 * glass and air at least 1 mm at the centre and the edge; 16 mm from the last
   face to the reference plane (room for the prism's entrance);
-* the relay's length ≤ the design's + (track limit − the design's track).
+* the relay's length ≤ the design's + (track limit − the design's track);
+* axial and lateral colour (first-order chromatic sums ``C_I``, ``C_II``,
+  F − C, for the same rays) no larger than the design's own relay's times
+  ``--colour-max`` (default 1). ``lfsim optimize``'s InI merit is
+  monochromatic, so colour that the relay adds is colour the optimized design
+  keeps: four singlets in a dense flint-like lanthanum glass flatten the
+  field best but, without this rule, fringe the retinal image.
 
 For each assignment of glasses and each track limit (tightest first), SLSQP
 starts from the best relay of the next tighter limit, the design's relay in
@@ -82,13 +88,19 @@ DEFAULT_GLASSES = ("N-LAK22", "N-BK7", "N-SF11", "N-LASF31A")
 @dataclass
 class Relay:
     """A four-singlet relay around a thin tunable lens: ``gaps`` (6,) AA → L1, L1 → L2,
-    L2 → TL, TL → L3, L3 → L4, L4 → reference plane; ``c1``, ``c2``, ``t``, ``n`` (4,)."""
+    L2 → TL, TL → L3, L3 → L4, L4 → reference plane; ``c1``, ``c2``, ``t``, ``n`` (4,); ``dn``
+    (4,) each glass's principal dispersion n_F − n_C (0: no colour)."""
 
     gaps: np.ndarray
     c1: np.ndarray
     c2: np.ndarray
     t: np.ndarray
     n: np.ndarray
+    dn: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.dn is None:
+            self.dn = np.zeros(4)
 
     @property
     def length(self) -> float:
@@ -101,9 +113,16 @@ class Relay:
         return np.concatenate([self.gaps, self.c1, self.c2, self.t])
 
     @classmethod
-    def unpack(cls, v, n) -> Relay:
+    def unpack(cls, v, n, dn=None) -> Relay:
         v = np.asarray(v, dtype=np.float64)
-        return cls(v[:6].copy(), v[6:10].copy(), v[10:14].copy(), v[14:18].copy(), np.asarray(n, dtype=np.float64))
+        return cls(v[:6].copy(), v[6:10].copy(), v[10:14].copy(), v[14:18].copy(), np.asarray(n, dtype=np.float64),
+                   None if dn is None else np.asarray(dn, dtype=np.float64))
+
+
+def dispersion(glass: str) -> float:
+    """A glass's principal dispersion n_F − n_C (486.13 and 656.27 nm)."""
+    m = lookup(glass)
+    return float(m.index(486.1327) - m.index(656.2725))
 
 
 def read_relay(raw: dict, lam: float, powers=None):
@@ -119,13 +138,14 @@ def read_relay(raw: dict, lam: float, powers=None):
     c2 = np.array([_curvature(S[i + 1]) for i in idx])
     t = np.array([float(S[i]["thickness"]) for i in idx])
     n = np.array([float(lookup(S[i]["material"]).index(lam)) for i in idx])
+    dn = np.array([dispersion(S[i]["material"]) for i in idx])
     th = lambda i: float(S[i]["thickness"])  # noqa: E731
     gaps = np.array([th(ia), th(idx[0] + 1), th(idx[1] + 1), th(it), th(idx[2] + 1), th(idx[3] + 1)])
     inside = set(range(ia + 1, idx[3] + 2)) - {it, *idx, *(j + 1 for j in idx)}
     if inside:
         raise ValueError(f"surface {names[min(inside)]!r} inside the relay: only four singlets and the tunable lens")
     phis = np.asarray(raw["ini"]["tunable"].get("power_diopters", powers), dtype=np.float64) * 1e-3
-    return Relay(gaps, c1, c2, t, n), phis
+    return Relay(gaps, c1, c2, t, n, dn), phis
 
 
 def _T(d):
@@ -176,33 +196,36 @@ def matrices(r: Relay, phi: float):
 
 
 def seidel(r: Relay, phi: float, marginal, chief) -> np.ndarray:
-    """Third-order Seidel sums (S_I spherical, S_II coma, S_III astigmatism, S_IV Petzval) of the
-    singlets' eight faces for a ``marginal`` and a ``chief`` ray (y, dy/dz) given at the AA plane,
-    through the tunable lens of power ``phi`` (ideal: it adds none). W. T. Welford, *Aberrations of
-    Optical Systems* (1986), ch. 8: ``S_I = −ΣA²yΔ(u/n)``, ``S_II = −ΣAĀyΔ(u/n)``,
-    ``S_III = −ΣĀ²yΔ(u/n)``, ``S_IV = −ΣH²cΔ(1/n)`` with ``A = n(u + yc)`` and the Lagrange
-    invariant ``H = n(uȳ − ūy)``."""
+    """Third-order Seidel sums (S_I spherical, S_II coma, S_III astigmatism, S_IV Petzval) and the
+    first-order chromatic sums (C_I axial, C_II lateral colour, F − C) of the singlets' eight faces
+    for a ``marginal`` and a ``chief`` ray (y, dy/dz) given at the AA plane, through the tunable
+    lens of power ``phi`` (ideal: it adds none). W. T. Welford, *Aberrations of Optical Systems*
+    (1986), ch. 8 and 9: ``S_I = −ΣA²yΔ(u/n)``, ``S_II = −ΣAĀyΔ(u/n)``, ``S_III = −ΣĀ²yΔ(u/n)``,
+    ``S_IV = −ΣH²cΔ(1/n)``, ``C_I = ΣAyΔ(δn/n)``, ``C_II = ΣĀyΔ(δn/n)`` with ``A = n(u + yc)``,
+    the Lagrange invariant ``H = n(uȳ − ūy)`` and ``δn = n_F − n_C`` (``r.dn``)."""
     (y, u), (yb, ub) = marginal, chief
     H = u * yb - ub * y
-    n = 1.0
-    S = np.zeros(4)
+    n, dn = 1.0, 0.0
+    S = np.zeros(6)
 
-    def face(c, n2):
-        nonlocal y, u, yb, ub, n
+    def face(c, n2, dn2):
+        nonlocal y, u, yb, ub, n, dn
         A, Ab = n * (u + y * c), n * (ub + yb * c)
         u2, ub2 = (A / n2) - y * c, (Ab / n2) - yb * c
         d = u2 / n2 - u / n
-        S[:] += [-A * A * y * d, -A * Ab * y * d, -Ab * Ab * y * d, -H * H * c * (1.0 / n2 - 1.0 / n)]
-        u, ub, n = u2, ub2, n2
+        dc = dn2 / n2 - dn / n
+        S[:] += [-A * A * y * d, -A * Ab * y * d, -Ab * Ab * y * d, -H * H * c * (1.0 / n2 - 1.0 / n),
+                 A * y * dc, Ab * y * dc]
+        u, ub, n, dn = u2, ub2, n2, dn2
 
     def move(t):
         nonlocal y, yb
         y, yb = y + t * u, yb + t * ub
 
     def lens(j):
-        face(r.c1[j], r.n[j])
+        face(r.c1[j], r.n[j], r.dn[j])
         move(r.t[j])
-        face(r.c2[j], 1.0)
+        face(r.c2[j], 1.0, 0.0)
 
     def tunable():
         nonlocal u, ub
@@ -292,6 +315,10 @@ class Rules:
     #: of W040 = S_I/8; the design's own relay has 6e-5 and 4e-5
     spherical_max: float = 1e-3
     coma_max: float = 1e-3
+    #: largest |C_I| and |C_II| (axial and lateral colour, F − C) as a multiple of the design's own
+    #: relay's: a relay may not add colour that the monochromatic merit of ``lfsim optimize``
+    #: would not see (inf: no limit)
+    colour_max: float = 1.0
 
 
 class Search:
@@ -311,9 +338,9 @@ class Search:
         self.marginal, self.chief = tuple(marginal[k1]), (h, -Ma[0, 0] * h / Ma[0, 1])
         self.seidel0 = seidel(ref, self.phis[k1], self.marginal, self.chief)
 
-    # x = (gaps 6, c1 4, c2 4, t 4, phi1)
-    def _relay(self, x, n):
-        return Relay.unpack(x[:18], n)
+    # x = (gaps 6, c1 4, c2 4, t 4, phi1); n, dn (4,): the glasses' indices and dispersions
+    def _relay(self, x, n, dn=None):
+        return Relay.unpack(x[:18], n, dn)
 
     def state_powers(self, x, n):
         """(tunable powers per CDP state, k) at ``x``."""
@@ -346,9 +373,9 @@ class Search:
         R = self.rules
         return np.minimum(R.clear_diameter / 2.0, np.maximum(face[0::2], face[1::2]) + R.margin)
 
-    def inequalities(self, x, n):
+    def inequalities(self, x, n, dn):
         """Every rule as ``g ≥ 0``."""
-        R, r = self.rules, self._relay(x, n)
+        R, r = self.rules, self._relay(x, n, dn)
         face, tun = self.semi_diameters(x, n)
         phis, _ = self.state_powers(x, n)
         a = self.lens_semi_diameters(face)
@@ -367,14 +394,17 @@ class Search:
         if math.isfinite(R.max_length):
             g.append(np.array([R.max_length - r.length]))
         g.append(np.concatenate([(phis - R.tunable_range[0]) * 1e3, (R.tunable_range[1] - phis) * 1e3]))
-        S1, S2, _, _ = seidel(r, x[18], self.marginal, self.chief)
-        g.append(np.array([R.spherical_max ** 2 - S1 ** 2, R.coma_max ** 2 - S2 ** 2]) / R.coma_max ** 2)
+        S = seidel(r, x[18], self.marginal, self.chief)
+        g.append(np.array([R.spherical_max ** 2 - S[0] ** 2, R.coma_max ** 2 - S[1] ** 2]) / R.coma_max ** 2)
+        if math.isfinite(R.colour_max):
+            c0 = np.abs(self.seidel0[4:6])
+            g.append(1.0 - (S[4:6] / (R.colour_max * c0)) ** 2)
         return np.concatenate(g)
 
     def field_curvature(self, x, n) -> float:
         """The objective: sagittal and tangential field curvature, ``(S_III + S_IV)² + (3·S_III +
         S_IV)²``, relative to the design's own Petzval term S_IV."""
-        _, _, S3, S4 = seidel(self._relay(x, n), x[18], self.marginal, self.chief)
+        S3, S4 = seidel(self._relay(x, n), x[18], self.marginal, self.chief)[2:4]
         return float(((S3 + S4) ** 2 + (3.0 * S3 + S4) ** 2) / self.seidel0[3] ** 2)
 
     def start(self, n_new, rng=None, spread=0.0):
@@ -388,16 +418,16 @@ class Search:
             x[:6] *= np.exp(rng.normal(0.0, spread * 0.2, 6))
         return x
 
-    def solve(self, n_new, x0, maxiter=300):
-        n_new = np.asarray(n_new, dtype=np.float64)
+    def solve(self, n_new, dn_new, x0, maxiter=300):
+        n_new, dn_new = np.asarray(n_new, dtype=np.float64), np.asarray(dn_new, dtype=np.float64)
         bounds = [(0.5, 120.0)] * 6 + [(-0.2, 0.2)] * 8 + [(1.0, 20.0)] * 4 + [self.rules.tunable_range]
         res = minimize(lambda x: self.field_curvature(x, n_new), x0, method="SLSQP", bounds=bounds,
                        constraints=[{"type": "eq", "fun": lambda x: self.equalities(x, n_new)},
-                                    {"type": "ineq", "fun": lambda x: self.inequalities(x, n_new)}],
+                                    {"type": "ineq", "fun": lambda x: self.inequalities(x, n_new, dn_new)}],
                        options={"maxiter": maxiter, "ftol": 1e-12})
         x = res.x
         feasible = (np.max(np.abs(self.equalities(x, n_new))) < 1e-7
-                    and np.min(self.inequalities(x, n_new)) > -1e-6)
+                    and np.min(self.inequalities(x, n_new, dn_new)) > -1e-6)
         return x, self.field_curvature(x, n_new), feasible
 
 
@@ -451,12 +481,13 @@ def search(S: Search, glasses, lam: float, starts: int, seed: int, warm=()):
     tighter limit, feasible under this one) and ``starts`` more (the reference relay in these
     glasses, then random perturbations of it): ``(x, objective, feasible runs)`` or None."""
     n = np.array([float(lookup(g).index(lam)) for g in glasses])
+    dn = np.array([dispersion(g) for g in glasses])
     rng = np.random.default_rng(seed)
     best, feasible = None, 0
     x0s = [np.asarray(w, dtype=np.float64) for w in warm]
     x0s += [S.start(n, rng, spread=1.0 if s else 0.0) for s in range(starts)]
     for x0 in x0s:
-        x, P, ok = S.solve(n, x0)
+        x, P, ok = S.solve(n, dn, x0)
         feasible += ok
         if ok and (best is None or abs(P) < abs(best[1])):
             best = (x, P)
@@ -478,11 +509,16 @@ def main(argv=None) -> int:
                     help="largest clear diameter (mm; default: %(default)s, 25.4 mm parts)")
     ap.add_argument("--starts", type=int, default=10,
                     help="SLSQP runs per limit and glasses besides the warm start (default: %(default)s)")
+    ap.add_argument("--colour-max", type=float, default=1.0,
+                    help="largest axial and lateral colour (first-order C_I, C_II) as a multiple of the "
+                         "design's own relay's; inf for no limit (default: %(default)s)")
     ap.add_argument("--seed", type=int, default=1, help="seed of the random starts (default: %(default)s)")
     ap.add_argument("--write", action="store_true", help="write each best relay as a design file in --out")
     args = ap.parse_args(argv)
     if args.starts < 1:
         ap.error(f"--starts {args.starts}: at least 1")
+    if not args.colour_max > 0:
+        ap.error(f"--colour-max {args.colour_max}: a positive number or inf")
     try:
         limits = [math.inf if v.strip().lower() == "none" else float(v) for v in args.track_limits.split(",")]
     except ValueError:
@@ -521,7 +557,8 @@ def main(argv=None) -> int:
     print(f"{path.name}: relay Petzval sum {ref.petzval():.4f} /mm, relay length {ref.length:.2f} mm, "
           f"track {track:.2f} mm")
     for glasses, lim in itertools.product(assignments, sorted(limits)):
-        rules = Rules(clear_diameter=args.clear_diameter, max_length=ref.length + (lim - track))
+        rules = Rules(clear_diameter=args.clear_diameter, max_length=ref.length + (lim - track),
+                      colour_max=args.colour_max)
         S = Search(ref, phis, rays, marginal, rules)
         warm = [best[glasses]] if glasses in best else []
         found = search(S, glasses, lam, args.starts, args.seed, warm=warm)
@@ -536,19 +573,23 @@ def main(argv=None) -> int:
         else:
             x, fc, nf = found
             fc, nf = float(fc), int(nf)
-            r = S._relay(x, np.array([float(lookup(g).index(lam)) for g in glasses]))
+            r = S._relay(x, np.array([float(lookup(g).index(lam)) for g in glasses]),
+                         np.array([dispersion(g) for g in glasses]))
             P = r.petzval()
             face, tun = S.semi_diameters(x, r.n)
             powers, k = S.state_powers(x, r.n)
             semi = S.lens_semi_diameters(face)
-            row.update(field_curvature=fc, petzval_per_mm=P, feasible_runs=nf,
-                       seidel=seidel(r, x[18], S.marginal, S.chief).tolist(), track_mm=track + r.length - ref.length,
+            sums = seidel(r, x[18], S.marginal, S.chief)
+            colour = sums[4:6] / S.seidel0[4:6]
+            row.update(field_curvature=fc, petzval_per_mm=P, feasible_runs=nf, colour_ratio=colour.tolist(),
+                       seidel=sums.tolist(), track_mm=track + r.length - ref.length,
                        relay_length_mm=r.length, gaps_mm=r.gaps.tolist(), c1=r.c1.tolist(), c2=r.c2.tolist(),
                        thickness_mm=r.t.tolist(), semi_diameter_mm=semi.tolist(),
                        lens_power_diopters=((r.n - 1.0) * (r.c1 - r.c2) * 1e3).tolist(),
                        tunable_power_diopters=(powers * 1e3).tolist(), tunable_footprint_mm=2.0 * tun)
             print(f"track <= {lim:g} mm, {','.join(glasses)}: field curvature {fc:.3f}, Petzval {P:.4f} /mm "
-                  f"(track {row['track_mm']:.2f} mm, "
+                  f"(track {row['track_mm']:.2f} mm, axial / lateral colour {colour[0]:.2f} / {colour[1]:.2f} "
+                  f"of the design's relay, "
                   f"lens powers {', '.join(f'{v:.1f}' for v in row['lens_power_diopters'])} D; "
                   f"{nf} of {args.starts + len(warm)} runs feasible)")
             if args.write:
@@ -560,7 +601,8 @@ def main(argv=None) -> int:
     S0 = Search(ref, phis, rays, marginal, Rules())
     doc = {"design": str(path), "reference": {
         "field_curvature": S0.field_curvature(S0.start(ref.n), ref.n), "petzval_per_mm": ref.petzval(),
-        "seidel": S0.seidel0.tolist(), "relay_length_mm": ref.length, "track_mm": track}, "rows": rows}
+        "seidel": S0.seidel0.tolist(), "relay_length_mm": ref.length, "track_mm": track},
+        "colour_max": args.colour_max, "rows": rows}
     (out / "relay_petzval.json").write_text(json.dumps(doc, indent=2))
     _plot(doc, out / "relay_petzval.png")
     written = [r["design"] for r in rows if "design" in r]

@@ -5,6 +5,7 @@ writes into a design keeps that design's InI first-order model (Eqs. 1-10 from t
 own maps) while the rules it searches under hold for the design's own relay."""
 
 import importlib.util
+import math
 import sys
 import tomllib
 from pathlib import Path
@@ -53,6 +54,24 @@ def test_seidel_sums_of_a_thin_lens_match_welford(curved_first):
     assert S[3] / H ** 2 == pytest.approx(r.petzval(), rel=1e-12)
 
 
+@pytest.mark.parametrize("yb", [0.0, 1.7])
+def test_chromatic_sums_of_a_thin_lens_match_welford(yb):
+    # Thin lens in air (Welford 1986, sec. 9.x): C_I = y^2 K / V and C_II = y ybar K / V with
+    # K = (n - 1)(c1 - c2), V = (n - 1) / (n_F - n_C); independent of the bending and of the
+    # object distance; an N-BK7-like dispersion.
+    n, dn, y = 1.5168, 0.008054, 2.0
+    for c1, c2, u in ((0.02, -0.02, 0.0), (0.05, 0.01, -0.03), (-0.01, -0.04, 0.02)):
+        r, _ = _thin_lens(c1, c2, n)
+        r.dn = np.array([dn, 0.0, 0.0, 0.0])
+        S = rp.seidel(r, 0.0, (y, u), (yb, 0.05))
+        K, V = (n - 1) * (c1 - c2), (n - 1) / dn
+        assert S[4] == pytest.approx(y * y * K / V, rel=1e-9)
+        assert S[5] == pytest.approx(y * yb * K / V, rel=1e-9, abs=1e-15)
+    # a glass of no dispersion adds no colour
+    r.dn = np.zeros(4)
+    assert np.all(rp.seidel(r, 0.0, (y, 0.0), (yb, 0.05))[4:] == 0.0)
+
+
 def test_the_design_relay_obeys_the_rules_and_a_found_relay_keeps_the_first_order(tmp_path):
     path = ROOT / "scenes" / "ini_wearable_optimized.toml"
     raw = tomllib.loads(path.read_text())
@@ -62,14 +81,21 @@ def test_the_design_relay_obeys_the_rules_and_a_found_relay_keeps_the_first_orde
     S = rp.Search(ref, phis, rays, marginal, rp.Rules())
     x0 = S.start(ref.n)
     assert np.max(np.abs(S.equalities(x0, ref.n))) < 1e-12
-    assert np.min(S.inequalities(x0, ref.n)) > -1e-9
+    assert np.min(S.inequalities(x0, ref.n, ref.dn)) > -1e-9
     assert ref.petzval() == pytest.approx(0.0791155, abs=1e-6)
-    # the same lenses in N-LASF31A (each lens's matrix kept), then one SLSQP run: every rule and
-    # the first order hold, and the field is flatter
-    n = np.full(4, float(rp.lookup("N-LASF31A").index(lam)))
-    x, fc, ok = S.solve(n, S.start(n), maxiter=100)
+    # the same lenses in N-LASF31A (each lens's matrix kept), then one SLSQP run without the
+    # colour rule: every other rule and the first order hold, and the field is flatter ...
+    n, dn = np.full(4, float(rp.lookup("N-LASF31A").index(lam))), np.full(4, rp.dispersion("N-LASF31A"))
+    assert rp.dispersion("N-LASF31A") == pytest.approx((1.88300 - 1) / 40.76, rel=2e-3)  # catalog nd, vd
+    S = rp.Search(ref, phis, rays, marginal, rp.Rules(colour_max=math.inf))
+    x, fc, ok = S.solve(n, dn, S.start(n), maxiter=100)
     assert ok and fc < S.field_curvature(x0, ref.n)
-    r = S._relay(x, n)
+    r = S._relay(x, n, dn)
+    # ... but the flint-like glass adds colour, which the default rules refuse
+    colour = rp.seidel(r, x[18], S.marginal, S.chief)[4:6] / S.seidel0[4:6]
+    assert np.max(np.abs(colour)) > 1.1
+    strict = rp.Search(ref, phis, rays, marginal, rp.Rules())
+    assert np.min(strict.inequalities(x, n, dn)) < -0.1
     semi = S.lens_semi_diameters(S.semi_diameters(x, n)[0])
     p = tmp_path / "found.toml"
     p.write_text(tomli_w.dumps(rp.write_variant(raw, r, ["N-LASF31A"] * 4, S.state_powers(x, n)[0], ref.length,
