@@ -16,7 +16,7 @@ import numpy as np
 
 from ..ini.model import IniModel
 from ..ini.package import package as ini_package
-from ..ini.subsystems import Bundle, Subsystems, display_points, sample, trace
+from ..ini.subsystems import Bundle, Subsystems, display_points, sample, trace, trace_many
 from ..metrics import distortion, footprint, mtf, pupil, spot
 
 CPD_TO_CPR = 180.0 / math.pi
@@ -252,6 +252,37 @@ def contrast_min(res: dict) -> np.ndarray:
     return grid if refined is None else np.minimum(grid, refined["contrast_min"])
 
 
+def lateral_colour(model: IniModel, subs: Subsystems) -> dict | None:
+    """Lateral colour of every sampled field: ``{"wavelengths_nm": [short, long], "arcmin": (S, F),
+    "ok": (S, F)}``, or None for a design of one wavelength.
+
+    The angle, seen from the viewing-window centre, between the image points (at the sub-system's
+    CDP depth: :func:`lfsim.metrics.spot.retinal_tan`) of the same display point at the design's
+    shortest and longest wavelengths (F and C for the usual 486.13 / 587.56 / 656.27 nm), each the
+    chief ray through the lenslet's stop centre at its own wavelength, with the tunable lens at the
+    primary wavelength's powers (it is an ideal lens: no colour of its own). The analysis proper
+    runs at the primary wavelength only; this is the colour it does not see.
+    """
+    w = sorted(float(v) for v in model.system.wavelengths_nm)
+    if len(w) < 2 or w[0] == w[-1]:
+        return None
+    powers = [model.state(k).tunable_power_diopters for k in range(len(model.depths))]
+    powers = None if any(p is None for p in powers) else powers
+    models = [IniModel(model.design, wavelength_nm=x, precision=model.tracer.precision,
+                       tunable_power_diopters=powers) for x in (w[0], w[-1])]
+    short, long_ = trace_many(models, subs, np.zeros((1, 2)))
+    D = np.array(model.depths)[subs.k][:, None]
+    ends = []
+    for b in (short, long_):
+        r = spot.retinal_tan(b.pos[:, :, 0], b.slopes()[:, :, 0], D)
+        v = np.concatenate([r, np.ones(r.shape[:-1] + (1,))], axis=-1)
+        ends.append(v)
+    a, b = ends
+    angle = np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1))
+    ok = short.ok[:, :, 0] & long_.ok[:, :, 0]
+    return {"wavelengths_nm": [w[0], w[-1]], "arcmin": np.where(ok, angle * spot.ARCMIN, np.nan), "ok": ok}
+
+
 def summarize(res: dict, package: bool = True) -> dict:
     """The ``metrics.json`` document (the contract in docs/contracts.md plus per-sub-system details).
 
@@ -263,6 +294,7 @@ def summarize(res: dict, package: bool = True) -> dict:
     """
     model, subs, spec = res["model"], res["subs"], res["model"].spec
     arcmin = spot.ARCMIN
+    lc = res.get("lateral_colour")
     pa_ok, gd_ok = res["pa_ok"], res["chief_ok"][:, 0]
     pa_sub = np.max(np.where(pa_ok, res["pa"], -np.inf), axis=1)
     sub_ok = np.any(pa_ok, axis=1)
@@ -283,6 +315,8 @@ def summarize(res: dict, package: bool = True) -> dict:
             "local_distortion_pct_max": _f(100 * np.max(res["local"][i])),
             "wavefront_rms_waves": [_f(v) for v in res["wf_rms"][i]],
             "vignetted_fraction": [_f(v) for v in res["vignetted"][i]],
+            "lateral_colour_arcmin": ([_f(v) if o else None for v, o in zip(lc["arcmin"][i], lc["ok"][i])]
+                                      if lc else None),
             "chief_ray_ok": bool(res["chief_ok"][i, 0]),
             "marginal_rays_ok": bool(np.all(res["pa_ok"][i])),
         })
@@ -300,6 +334,8 @@ def summarize(res: dict, package: bool = True) -> dict:
             "gd_mean_deg": _masked(np.mean, res["gd"][sel], gd_ok[sel]),
             "pa_max": _masked(np.max, pa_sub[sel], sub_ok[sel]),
             "pa_mean": _masked(np.mean, res["pa"][sel], pa_ok[sel]),
+            "lateral_colour_max_arcmin": _masked(np.max, lc["arcmin"][sel], lc["ok"][sel]) if lc else None,
+            "lateral_colour_mean_arcmin": _masked(np.mean, lc["arcmin"][sel], lc["ok"][sel]) if lc else None,
             "first_order": res["states"][k].as_dict(),
         }
     conv = np.abs(res["rms"] - res["rms_n"])
@@ -318,6 +354,9 @@ def summarize(res: dict, package: bool = True) -> dict:
         "contrast_refine_levels": refined["levels"] if refined else 0,
         "contrast_refine_s": round(refined["seconds"], 3) if refined else 0.0,
         "rms_spot_mean_arcmin": _f(np.mean(res["rms"]) * arcmin),
+        "lateral_colour_max_arcmin": _masked(np.max, lc["arcmin"], lc["ok"]) if lc else None,
+        "lateral_colour_mean_arcmin": _masked(np.mean, lc["arcmin"], lc["ok"]) if lc else None,
+        "lateral_colour_wavelengths_nm": lc["wavelengths_nm"] if lc else None,
         "local_distortion_pct_max": _f(100 * np.max(res["local"])),
         "rays_failed": int(np.sum(~res["bundle"].ok[:, :, res["sets"].slices["gl2"]])),
         "rms_spot_quadrature_error_arcmin": _f(np.max(conv) * arcmin),
@@ -361,6 +400,7 @@ def analyze(design, out_dir=None, stride=None, symmetry=None, depths_diopters=No
             depths.append(hit[0])
     subs = sample(ref, stride=stride, symmetry=symmetry, depths=depths)
     res = evaluate(model, subs, progress=progress, reference=None if ref is model else ref)
+    res["lateral_colour"] = lateral_colour(model, subs)
     doc = summarize(res)
     if ref is not model:
         doc["reference"] = ref.file

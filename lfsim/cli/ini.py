@@ -108,6 +108,11 @@ def cmd_analyze(args) -> int:
           + (f"; {s['pa_fields_failed']} fields' marginal rays failed)" if s.get("pa_fields_failed") else ")"))
     print(f"  contrast at Nyquist {s['nyquist_cpd']:.2f} cpd: min {_num(s['contrast_nyquist_min'], '.3f')}, "
           f"mean {_num(s['contrast_nyquist_mean'], '.3f')}")
+    if s.get("lateral_colour_wavelengths_nm"):
+        lo, hi = s["lateral_colour_wavelengths_nm"]
+        print(f"  lateral colour {lo:.1f}-{hi:.1f} nm: max {_num(s['lateral_colour_max_arcmin'], '.3f')}', "
+              f"mean {_num(s['lateral_colour_mean_arcmin'], '.3f')}' (chief rays; the figures above are at "
+              f"{doc['wavelength_nm']:g} nm)")
     for D, b in doc["by_depth"].items():
         print(f"  CDP {D} D: contrast min {_num(b['contrast_nyquist_min'], '.3f')} "
               f"mean {_num(b['contrast_nyquist_mean'], '.3f')}, "
