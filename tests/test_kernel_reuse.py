@@ -181,3 +181,22 @@ def test_a_focal_stack_rendered_again_compiles_nothing(scenes, tmp_path):
         assert p.returncode == 0, p.stderr[-2000:]
         counts.append(int(p.stdout.rsplit("COMPILED", 1)[1]))
     assert counts[0] > 0 and counts[1:] == [0, 0], counts
+
+
+def test_package_figures_compile_once_for_any_numbers(scenes):
+    """The package's edge thicknesses evaluate sags at each lens's semi-diameter: a radius that
+    entered the kernel as a literal compiled a kernel per lens and per design."""
+    from lfsim.ini.package import package
+
+    raw = _raw(scenes / "ini_coaxial.toml")
+    a = Design.from_dict(raw, "a.toml")
+    b = Design.from_dict(_perturbed(raw, 3e-4), "b.toml")
+    pa = package(IniModel(a))
+    pb = None
+
+    def run():
+        nonlocal pb
+        pb = package(IniModel(b))
+
+    assert _compiled(run) == 0
+    assert pb["min_edge_thickness_mm"] != pa["min_edge_thickness_mm"]

@@ -266,13 +266,14 @@ def glass_pairs(system, names, values, last: int) -> list[tuple[int, int, float]
 
 def edge_thickness(tracer, values, i: int, j: int, radius: float) -> float:
     """Axial glass thickness between surfaces i and j at ``radius`` (sags from the
-    tracer's surface model with parameters ``values``); −inf where a sag is undefined."""
+    tracer's surface model with parameters ``values``); −inf where a sag is undefined.
+    ``radius`` enters the kernel as an opaque value, so every radius shares one kernel."""
     T, names = tracer.T, tracer.names
     P, block = tracer.params(values=values), dr.zeros(T.UInt32, 1)
 
     def z(k):
         with dr.suspend_grad():
-            zz, _, _, inside = sag(T.Float(radius), T.Float(0.0), tracer.shape(P, k, block))
+            zz, _, _, inside = sag(dr.opaque(T.Float, radius), T.Float(0.0), tracer.shape(P, k, block))
         return float(zz[0]) if bool(inside[0]) else math.nan
 
     thick = float(values[names.index(f"{tracer.system.surfaces[i].name}.thickness")])
