@@ -16,80 +16,13 @@ from lfsim.ini.subsystems import sample
 from lfsim.metrics.spot import ARCMIN
 from lfsim.optics.materials import lookup
 
-G = 4.5  # display gap (mm)
-F_MLA, L_TL, F_EP, T_W, T_M = 3.5, 46.75, 45.0, 3.0, 2.0
-R_W, R_M1, R_M2 = 100.0, 60.0, 80.0
-GAP_EP_W, GAP_W_M, GAP_M_VW = 10.0, 4.0, 12.0
+from helpers import SMALL, small_ini
+
 WAVELENGTHS = [486.1327, 587.5618, 656.2725]
 
 
 def _text(glass: str = '"N-BK7"', wavelengths=WAVELENGTHS) -> str:
-    """An InI design of ideal lenslets, an ideal eyepiece lens and two real singlets before the
-    viewing window (the lenses of ``test_package``)."""
-    return f'''
-name = "lateral colour test"
-[system]
-wavelengths_nm = {list(wavelengths)}
-[object]
-distance = {G}
-[arrays.mla]
-m = 5
-n = 3
-pitch = [1.0, 1.0]
-[[surfaces]]
-name = "MLA"
-type = "paraxial"
-focal_length = {F_MLA}
-array = "mla"
-aperture = {{ type = "rectangular", half_width = [0.5, 0.5] }}
-thickness = {L_TL}
-[[surfaces]]
-name = "TL"
-type = "paraxial"
-focal_length = inf
-thickness = 0.0
-semi_diameter = 10.0
-[[surfaces]]
-name = "EP"
-type = "paraxial"
-focal_length = {F_EP}
-thickness = {GAP_EP_W}
-semi_diameter = 10.0
-[[surfaces]]
-name = "W1"
-radius = {R_W}
-thickness = {T_W}
-material = {glass}
-semi_diameter = 12.0
-[[surfaces]]
-name = "W2"
-radius = {-R_W}
-thickness = {GAP_W_M}
-semi_diameter = 12.0
-[[surfaces]]
-name = "M1"
-radius = {R_M1}
-thickness = {T_M}
-material = {glass}
-semi_diameter = 10.0
-[[surfaces]]
-name = "M2"
-radius = {R_M2}
-thickness = {GAP_M_VW}
-semi_diameter = 10.0
-[[surfaces]]
-name = "VW"
-dummy = true
-[ini]
-mla = "mla"
-pixel_pitch = 0.008
-pixels_per_ei = [125, 125]
-cdp_diopters = [0.0, 1.0, 3.0]
-viewing_window = "VW"
-[ini.tunable]
-surface = "TL"
-range_diopters = [-30.0, 30.0]
-'''
+    return small_ini(glass=glass, wavelengths=wavelengths)
 
 
 def _design(text: str):
@@ -99,7 +32,8 @@ def _design(text: str):
 def _paraxial_r(s: float, c: float, tl_power: float, n: float, D: float) -> float:
     """The retinal tangent (``slope − height·D/1000`` at the viewing window, one axis) of the
     chief ray from display point ``s`` through the lenslet centre ``c``, by y-nu matrices."""
-    y, u = c, (c - s) / G  # the ideal lenslet does not bend a ray through its centre
+    L = SMALL
+    y, u = c, (c - s) / L["g"]  # the ideal lenslet does not bend a ray through its centre
 
     def move(t):
         nonlocal y
@@ -113,18 +47,18 @@ def _paraxial_r(s: float, c: float, tl_power: float, n: float, D: float) -> floa
         nonlocal u
         u = (n1 * u - y * (n2 - n1) * curv) / n2
 
-    move(L_TL)
+    move(L["l_tl"])
     lens(tl_power)
-    lens(1.0 / F_EP)
-    move(GAP_EP_W)
-    face(1.0 / R_W, 1.0, n)
-    move(T_W)
-    face(-1.0 / R_W, n, 1.0)
-    move(GAP_W_M)
-    face(1.0 / R_M1, 1.0, n)
-    move(T_M)
-    face(1.0 / R_M2, n, 1.0)
-    move(GAP_M_VW)
+    lens(1.0 / L["f_ep"])
+    move(L["gap_ep_w"])
+    face(1.0 / L["r_w"], 1.0, n)
+    move(L["t_w"])
+    face(-1.0 / L["r_w"], n, 1.0)
+    move(L["gap_w_m"])
+    face(1.0 / L["r_m1"], 1.0, n)
+    move(L["t_m"])
+    face(1.0 / L["r_m2"], n, 1.0)
+    move(L["t_vw"])
     return u - y * D / 1000.0
 
 

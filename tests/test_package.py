@@ -29,76 +29,10 @@ KEYS = ("track_mm", "max_clear_diameter_mm", "clear_diameters_mm", "tunable_clea
         "tunable_footprint_mm", "bounding_box_mm", "bounding_box_min_mm", "bounding_box_max_mm", "prism_box_mm",
         "min_center_thickness_mm", "min_edge_thickness_mm", "min_prism_thickness_mm", "eye_relief_mm")
 
-G = 4.5  # display gap
-T_VW = 12.0  # M2 -> VW
+from helpers import SMALL, small_ini as _small
 
-
-def _small(m2_radius: float | None = 80.0) -> str:
-    m2 = f"radius = {m2_radius}" if m2_radius is not None else "radius = inf"
-    return f'''
-name = "package test"
-[system]
-wavelengths_nm = [587.5618]
-[object]
-distance = {G}
-[arrays.mla]
-m = 5
-n = 3
-pitch = [1.0, 1.0]
-[[surfaces]]
-name = "MLA"
-type = "paraxial"
-focal_length = 3.5
-array = "mla"
-aperture = {{ type = "rectangular", half_width = [0.5, 0.5] }}
-thickness = 46.75
-[[surfaces]]
-name = "TL"
-type = "paraxial"
-focal_length = inf
-thickness = 0.0
-semi_diameter = 10.0
-[[surfaces]]
-name = "EP"
-type = "paraxial"
-focal_length = 45.0
-thickness = 10.0
-semi_diameter = 10.0
-[[surfaces]]
-name = "W1"
-radius = 100.0
-thickness = 3.0
-material = "N-BK7"
-semi_diameter = 12.0
-[[surfaces]]
-name = "W2"
-radius = -100.0
-thickness = 4.0
-semi_diameter = 12.0
-[[surfaces]]
-name = "M1"
-radius = 60.0
-thickness = 2.0
-material = "N-BK7"
-semi_diameter = 10.0
-[[surfaces]]
-name = "M2"
-{m2}
-thickness = {T_VW}
-semi_diameter = 10.0
-[[surfaces]]
-name = "VW"
-dummy = true
-[ini]
-mla = "mla"
-pixel_pitch = 0.008
-pixels_per_ei = [125, 125]
-cdp_diopters = [0.0, 1.0, 3.0]
-viewing_window = "VW"
-[ini.tunable]
-surface = "TL"
-range_diopters = [-30.0, 30.0]
-'''
+G = SMALL["g"]  # display gap
+T_VW = SMALL["t_vw"]  # M2 -> VW
 
 
 def _design(text: str):
