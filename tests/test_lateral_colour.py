@@ -8,6 +8,7 @@ import tomllib
 
 import numpy as np
 import pytest
+from helpers import SMALL, small_ini
 
 import lfsim
 from lfsim.analysis.ini_analysis import analyze, lateral_colour
@@ -15,8 +16,6 @@ from lfsim.ini.model import IniModel
 from lfsim.ini.subsystems import sample
 from lfsim.metrics.spot import ARCMIN
 from lfsim.optics.materials import lookup
-
-from helpers import SMALL, small_ini
 
 WAVELENGTHS = [486.1327, 587.5618, 656.2725]
 

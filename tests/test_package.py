@@ -17,6 +17,8 @@ import tomllib
 import numpy as np
 import pytest
 from conftest import SCENES
+from helpers import SMALL
+from helpers import small_ini as _small
 
 import lfsim
 from lfsim.ini.model import IniModel
@@ -28,8 +30,6 @@ SHIPPED = sorted(SCENES.glob("ini_*.toml"))
 KEYS = ("track_mm", "max_clear_diameter_mm", "clear_diameters_mm", "tunable_clear_aperture_mm",
         "tunable_footprint_mm", "bounding_box_mm", "bounding_box_min_mm", "bounding_box_max_mm", "prism_box_mm",
         "min_center_thickness_mm", "min_edge_thickness_mm", "min_prism_thickness_mm", "eye_relief_mm")
-
-from helpers import SMALL, small_ini as _small
 
 G = SMALL["g"]  # display gap
 T_VW = SMALL["t_vw"]  # M2 -> VW
