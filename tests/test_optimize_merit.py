@@ -350,3 +350,43 @@ def test_package_block_jacobian_matches_central_differences(scenes, tmp_path):
         moved += scale > 0
         np.testing.assert_allclose(J[blk, j], fd, rtol=0, atol=1e-3 * scale + 1e-6, err_msg=M.cols[j].label)
     assert moved >= 3
+
+
+def test_colour_block_jacobian_and_figure(scenes, tmp_path):
+    """Lateral colour in the merit (weight ``colour``): its rows against central differences
+    of the exact residuals (both wavelengths re-aimed, the display layout moving), its figure
+    against `analyze`'s angle on the same sub-systems (the tangent difference is at least the
+    angle and within 1/cos² of the field), its hinge, and no rows at the default weight 0."""
+    from lfsim.analysis.ini_analysis import lateral_colour
+
+    variables = ["S1.curvature", "A1a.curvature", "object.distance", "tunable"]
+    off = IniMerit(_design(scenes, tmp_path, variables), _design(scenes, tmp_path, variables).optimize)
+    off.evaluate(off.x0, derivatives=False)
+    assert "colour" not in dict(off.layout)
+    d = _design(scenes, tmp_path, variables, weights={"distortion": 0.1, "colour": 1.0},
+                targets={"lateral_colour_max_arcmin": 2.0})
+    M = IniMerit(d, d.optimize)
+    x0 = M.x0
+    r, J, det = M.evaluate(x0, dense=True)
+    assert det["colour"] > 0 and det["colour_max"] > 0
+    lay = dict(M.layout)
+    names = [n for n, _ in M.layout]
+    a = sum(n for name, n in M.layout[:names.index("colour")])
+    blk = slice(a, a + lay["colour"] + lay["colour_max"])
+    figure = M.evaluate(x0, derivatives=False)[2]
+    lc = lateral_colour(M.model_at(x0), M.figures["subs"])
+    ok = lc["ok"]
+    assert figure["lateral_colour_max_arcmin"] >= np.max(lc["arcmin"][ok]) * (1 - 1e-9)
+    assert figure["lateral_colour_max_arcmin"] <= np.max(lc["arcmin"][ok]) * 1.1
+    for j in range(len(x0)):
+        h = 1e-6 * max(1.0, abs(x0[j])) if M.cols[j].state is None else 1e-4
+        xp, xm = x0.copy(), x0.copy()
+        xp[j] += h
+        xm[j] -= h
+        rp, rm = _dense(M, xp)[blk], _dense(M, xm)[blk]
+        fd = (rp - rm) / (2 * h)
+        keep = (rp == 0.0) == (rm == 0.0)  # hinge rows that do not switch
+        scale = np.abs(fd[keep]).max()
+        assert scale > 0, M.cols[j].label
+        err = np.abs(fd - J[blk, j])[keep].max()
+        assert err <= 2e-5 * scale + 1e-7, (M.cols[j].label, err, scale)

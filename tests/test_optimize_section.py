@@ -1,6 +1,7 @@
 """The [optimize] section: parsed into OptimizeSpec, every bad value named in one line."""
 
 import math
+import re
 from pathlib import Path
 
 import pytest
@@ -269,3 +270,16 @@ def test_package_limits_parse(make_design, freeform_text):
     assert t.package_limits and d.optimize.weights.package == 3.0
     from lfsim.design.optimize_section import OptimizeTargets
     assert not OptimizeTargets().package_limits
+
+
+def test_colour_weight_needs_two_wavelengths(make_design, freeform_text):
+    text = (freeform_text + "\n[optimize]\n[optimize.weights]\ncolour = 2.0\n"
+            "[optimize.targets]\nlateral_colour_max_arcmin = 3.0\n")
+    spec = make_design(text).optimize
+    assert spec.weights.colour == 2.0 and spec.targets.lateral_colour_max_arcmin == 3.0
+    assert OptimizeSpec().weights.colour == 0.0  # off by default
+    one = re.sub(r"(?m)^wavelengths_nm = .*$", "wavelengths_nm = [587.5618]", text)
+    with pytest.raises(DesignError) as e:
+        make_design(one, name="mono.toml")
+    assert e.value.key == "optimize.weights.colour" and "mono.toml" in str(e.value)
+    assert "two or more" in str(e.value) and "\n" not in str(e.value)

@@ -50,6 +50,8 @@ Schema (units mm, degrees, diopters)::
     eye_relief_min_mm = 18.0      # window centre → nearest ray on the last surface
     clear_diameter_max_mm = 25.4  # the relay lenses' clear diameters
     tunable_aperture_mm = 10.0    # rays through the tunable lens within this diameter
+    lateral_colour_max_arcmin = 5.0  # optional: each field's lateral colour (the chief
+                                  # rays at the shortest and longest wavelengths) at most this
     tir_margin_deg = 1.0          # TIR surfaces: incidence at least this far beyond
                                   # the critical angle, in [0, 90)
     [optimize.weights]       # all optional, finite and >= 0
@@ -63,6 +65,8 @@ Schema (units mm, degrees, diopters)::
     thickness = 1.0
     tir = 1.0
     package = 1.0            # per µm beyond a package limit
+    colour = 0.0             # per arcmin of lateral colour (off by default; needs
+                             # two or more [system] wavelengths)
 
 A schedule instead of ``stages = [...]``: ``[[optimize.stages]]`` tables run
 in the order written, each from the design the one before it ended with; every
@@ -165,6 +169,7 @@ class OptimizeTargets:
     eye_relief_min_mm: float | None = None
     clear_diameter_max_mm: float | None = None
     tunable_aperture_mm: float | None = None
+    lateral_colour_max_arcmin: float | None = None
 
     @property
     def package_limits(self) -> bool:
@@ -198,6 +203,7 @@ class OptimizeWeights:
     thickness: float = 1.0
     tir: float = 1.0
     package: float = 1.0
+    colour: float = 0.0
 
 
 TARGET_DEFAULTS = OptimizeTargets()
@@ -361,7 +367,8 @@ def _sampling(ctx, tab, p="optimize.sampling", allowed=SAMPLING_KEYS) -> dict:
 def _targets(ctx, tab, p="optimize.targets") -> OptimizeTargets:
     ctx.no_unknown(tab, TARGET_KEYS, p)
     kw = {}
-    for key in ("gd_max_deg", "gd_mean_deg", "pa_max", "local_distortion_max", "spot_axis_max_arcmin"):
+    for key in ("gd_max_deg", "gd_mean_deg", "pa_max", "local_distortion_max", "spot_axis_max_arcmin",
+                "lateral_colour_max_arcmin"):
         if key in tab:
             kw[key] = ctx.number(tab, key, p, positive=True)
     for key, top, allowed in (("crosstalk_margin", 0.5, "a fraction of the lenslet pitch in [0, 0.5)"),
@@ -517,4 +524,10 @@ def parse_optimize(ctx, data: dict, system: System, ini=None) -> OptimizeSpec | 
         sec = {k: getattr(spec, k) for k in ("variables", "solver", "iterations", "stride", "fields", "pupil")}
         schedule = _schedule(ctx, raw_stages, tab, system, ini, sec)
         spec = replace(spec, schedule=schedule, stages=tuple(st.name for st in schedule))
+    if len(set(system.wavelengths_nm)) < 2:  # lateral colour needs two wavelengths
+        where = [("optimize.weights.colour", spec.weights)]
+        where += [(f"optimize.stages[{j}].weights.colour", st.weights) for j, st in enumerate(spec.schedule or ())]
+        for key, w in where:
+            if w.colour > 0:
+                raise ctx.err(key, w.colour, "lateral colour needs two or more [system] wavelengths_nm")
     return spec

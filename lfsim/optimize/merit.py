@@ -41,6 +41,13 @@ prism_        a prism's thickness between opposite faces below
 thickness     ``min_prism_thickness`` at the faces' aperture grids, µm
               (:mod:`lfsim.optics.solids`)
 tir           incidence below the critical angle + margin on TIR surfaces, °
+colour        lateral colour (weight ``colour``, 0 by default: off): the
+              retinal-tangent difference of each field's chief rays at the
+              design's shortest and longest wavelengths (the same display
+              point, the tunable lens at the primary's powers), arcmin over
+              √(sub-systems × fields); ``colour_max``: 10 × its excess over
+              ``lateral_colour_max_arcmin``. The tangent difference is within
+              1/cos² of the field angle of `analyze`'s ``lateral_colour`` angle
 lost          a ray lost to a failed refraction or intersection: a constant
               (steps that lose rays raise the merit and are rejected)
 ============  ==============================================================
@@ -217,6 +224,26 @@ def columns(design: Design, spec) -> list[Column]:
     return out
 
 
+def _retinal(J, shape, D, K: int, derivatives: bool, dsx=None):
+    """``(pos, r, dpos, dr)`` of traced rays ``J`` reshaped to ``shape``: viewing-window
+    positions and retinal tangents ``r = t − h·D/1000`` (``D`` broadcasts against ``shape``),
+    with their derivatives (…, K) when ``derivatives``; ``dsx`` (shape + (2, K)): the
+    display-point derivatives to chain in numpy (the dense evaluation), else None."""
+    pos = J.pos.reshape(shape + (2,))
+    dirs = J.dir.reshape(shape + (3,))
+    slope = dirs[..., :2] / dirs[..., 2:3]
+    r = slope - pos * (D[..., None] / 1000.0)
+    if not derivatives:
+        return pos, r, None, None
+    dpos = J.d_pos.reshape(shape + (2, K))
+    ddir = J.d_dir.reshape(shape + (3, K))
+    if dsx is not None:
+        dpos = dpos + np.einsum("...ab,...bk->...ak", J.ds_pos.reshape(shape + (2, 2)), dsx)
+        ddir = ddir + np.einsum("...ab,...bk->...ak", J.ds_dir.reshape(shape + (3, 2)), dsx)
+    dslope = (ddir[..., :2, :] - slope[..., None] * ddir[..., 2:3, :]) / dirs[..., 2:3, None]
+    return pos, r, dpos, dslope - dpos * (D[..., None, None] / 1000.0)
+
+
 class IniMerit:
     """Residuals and Jacobian of the light-field merit (a solver ``Problem``).
 
@@ -266,6 +293,14 @@ class IniMerit:
         self.evaluations = 0
         self._has_prism = bool(prisms(design.system))
         self._model = None  # (x bytes, IniModel) of the last design built
+        self._colour_models = None  # (x bytes, [IniModel, IniModel]) at the colour wavelengths
+        waves = sorted(float(w) for w in design.system.wavelengths_nm)
+        self.colour_wavelengths = (waves[0], waves[-1]) if waves[0] < waves[-1] else None
+        if spec.weights.colour > 0 and self.colour_wavelengths is None:
+            raise ValueError(f"{design.path}: optimize.weights.colour = {spec.weights.colour:g} needs two or "
+                             f"more [system] wavelengths_nm (the design has {waves})")
+        self._colour0 = ([IniModel(design, wavelength_nm=w) for w in self.colour_wavelengths]
+                         if spec.weights.colour > 0 else None)
 
     # ------------------------------------------------------------ designs
     @property
@@ -315,6 +350,31 @@ class IniMerit:
             if c.state is None:
                 v[m0.tracer.index[c.name]] = val
         return IniModel(self.design0, values=v, tunable_power_diopters=self._powers(x))
+
+    def colour_models_at(self, x) -> list[IniModel]:
+        """The InI models at ``x`` for the shortest and longest wavelengths (the last pair is
+        kept), their tunable lens at the primary model's powers."""
+        x = np.asarray(x, dtype=np.float64)
+        key = x.tobytes()
+        if self._colour_models is None or self._colour_models[0] != key:
+            primary = self.model_at(x)
+            powers = None if primary.tl_power[0] is None else [1000.0 * p for p in primary.tl_power]
+            arrays = self.design0.system.arrays
+            if any(c.state is None and c.name.split(".")[0] in arrays for c in self.cols):
+                design = self.design_at(x)
+                models = [IniModel(design, wavelength_nm=w, tunable_power_diopters=powers)
+                          for w in self.colour_wavelengths]
+            else:
+                models = []
+                for m0 in self._colour0:
+                    v = m0.values0.copy()
+                    for c, val in zip(self.cols, x):
+                        if c.state is None:
+                            v[m0.tracer.index[c.name]] = val
+                    models.append(IniModel(self.design0, wavelength_nm=m0.lam, values=v,
+                                           tunable_power_diopters=powers))
+            self._colour_models = (key, models)
+        return self._colour_models[1]
 
     # ------------------------------------------------------------ pieces
     def _subs(self, model: IniModel):
@@ -367,22 +427,26 @@ class IniMerit:
         wx, wy = axis(model.arr.m, subs.m), axis(model.arr.n, subs.n)
         return np.array([wx[int(a)] * wy[int(b)] for a, b in zip(subs.m, subs.n)])
 
-    def _rays(self, model: IniModel, subs, derivatives: bool, ds=None):
-        S, F, R = len(subs), subs.display.shape[1], len(self.rho)
+    def _rays(self, model: IniModel, subs, derivatives: bool, ds=None, rho=None, record=None):
+        """Trace ``subs`` × fields × pupil points ``rho`` (default the merit's) with the
+        Jacobian; ``record`` (default :meth:`_record`): the surfaces whose hits come back."""
+        rho = self.rho if rho is None else rho
+        S, F, R = len(subs), subs.display.shape[1], len(rho)
         shape = (S, F, R)
         s = np.broadcast_to(subs.display[:, :, None, :], shape + (2,)).reshape(-1, 2)
-        rho = np.broadcast_to(self.rho[None, None], shape + (2,)).reshape(-1, 2)
+        rho = np.broadcast_to(rho[None, None], shape + (2,)).reshape(-1, 2)
         m = np.broadcast_to(subs.m[:, None, None], shape).ravel()
         n = np.broadcast_to(subs.n[:, None, None], shape).ravel()
         k = np.broadcast_to(subs.k[:, None, None], shape).ravel()
-        record = self._record(model)
+        own = record is None
+        record = self._record(model) if own else record
         cols = [(c.name, c.state) for c in self.cols]
         # tunable-lens columns: the tracer's power is in 1/mm, the variable in diopters
         conv = np.array([1e-3 if c.state is not None else 1.0 for c in self.cols])
         if ds is not None:  # lean: the chain rule, the re-aiming and the units inside the trace
             J = trace_rays_jacobian(model, s, m, n, rho, k, cols, record=record, derivatives=derivatives,
-                                    ds=ds / conv, max_ray_copies=MERIT_RAY_COPIES, select=self._select(model),
-                                    column_scale=conv)
+                                    ds=ds / conv, max_ray_copies=MERIT_RAY_COPIES,
+                                    select=self._select(model) if own else None, column_scale=conv)
         else:
             J = trace_rays_jacobian(model, s, m, n, rho, k, cols, record=record, derivatives=derivatives)
             if derivatives:
@@ -434,9 +498,13 @@ class IniMerit:
         rows = Rows(K, derivatives, compress=not dense)
         parts = []
         for a in range(0, S, per):
-            st = self._sample(model, x, subs, ref, dref, slice(a, min(S, a + per)), derivatives, dense)
+            part = slice(a, min(S, a + per))
+            st = self._sample(model, x, subs, ref, dref, part, derivatives, dense)
             for block in (self._lost, self._spot, self._gd, self._pa, self._distortion, self._recorded):
                 for name, r, j in block(st):
+                    rows.add(name, r, j)
+            if self._colour0 is not None:
+                for name, r, j in self._colour(st, dref, part):
                     rows.add(name, r, j)
             parts.append(st.figures)
         fig = {key: np.concatenate([p_[key] for p_ in parts]) for key in parts[0]}
@@ -461,6 +529,7 @@ class IniMerit:
                        pa_max=float(np.max(pa_f[pa_ok])) if pa_ok.any() else None,
                        rms_spot_mean_arcmin=float(np.mean(rms[spot_ok]) * ARCMIN) if spot_ok.any() else None,
                        gd_mean_deg=float(gw[okc] @ gd[okc] / gw[okc].sum()) if okc.any() else None,
+                       **self._colour_details(fig),
                        rays=self.rays, rays_lost=int(fig["lost"].sum()),
                        efl_mm=[float(v) for v in ref["efl"]], fov_deg=ref["fov"].tolist())
         self.details = details
@@ -480,10 +549,8 @@ class IniMerit:
         (S, F, R), J = self._rays(model, part, derivatives, None if dense else ds)
         ok = (J.status == 0).reshape(S, F, R)
         D = np.array(model.depths)[part.k][:, None, None]
-        pos = J.pos.reshape(S, F, R, 2)
-        dirs = J.dir.reshape(S, F, R, 3)
-        slope = dirs[..., :2] / dirs[..., 2:3]
-        r = slope - pos * (D[..., None] / 1000.0)
+        dsx = ds.reshape(S, F, R, 2, K) if dense and derivatives else None
+        pos, r, dpos, dr = _retinal(J, (S, F, R), D, K, derivatives, dsx)
         nrec = J.surf.shape[1]
         per_state = ("efl", "fov")  # references per CDP state, not per sub-system
         cut = {key: (v if key in per_state else v[sl]) for key, v in ref.items()}
@@ -493,19 +560,13 @@ class IniMerit:
                      tirs=self._tir_surfaces(model), apertures=self._aperture_surfaces(model))
         st.figures["lost"] = (~ok).reshape(S, -1).sum(axis=1)
         if derivatives:
-            dpos = J.d_pos.reshape(S, F, R, 2, K)
-            ddir = J.d_dir.reshape(S, F, R, 3, K)
             dsurf = J.d_surf.reshape(S, F, R, nrec, 2, K)
             dcos = J.d_cos_in.reshape(S, F, R, nrec, K)
             if dense:  # the chain rule in numpy, from the display-point derivatives
                 dsx = ds.reshape(S, F, R, 2, K)
-                dpos = dpos + np.einsum("sfrab,sfrbk->sfrak", J.ds_pos.reshape(S, F, R, 2, 2), dsx)
-                ddir = ddir + np.einsum("sfrab,sfrbk->sfrak", J.ds_dir.reshape(S, F, R, 3, 2), dsx)
                 dsurf = dsurf + np.einsum("sfrjab,sfrbk->sfrjak", J.ds_surf.reshape(S, F, R, nrec, 2, 2), dsx)
                 dcos = dcos + np.einsum("sfrjb,sfrbk->sfrjk", J.ds_cos_in.reshape(S, F, R, nrec, 2), dsx)
-            st.dpos, st.dsurf, st.dcos = dpos, dsurf, dcos
-            dslope = (ddir[..., :2, :] - slope[..., None] * ddir[..., 2:3, :]) / dirs[..., 2:3, None]
-            st.dr = dslope - st.dpos * (D[..., None, None] / 1000.0)
+            st.dpos, st.dsurf, st.dcos, st.dr = dpos, dsurf, dcos, dr
             st.dpar_c = dref["par_c"][sl] if dref else np.zeros((S, F, 2, K))
             st.dpar_m = dref["par_m"][sl] if dref else np.zeros((S, F, 4, 2, K))
             st.dd_v = dref["d_v"][sl] if dref else np.zeros((S, K))
@@ -598,6 +659,47 @@ class IniMerit:
         if t.pa_max is not None:
             over = pa_ok & (pa_f > t.pa_max)
             yield ("pa_hinge", *_hinge(st, over, (pa_f - t.pa_max) * 10.0 * w.pa, lambda ix: dpa_f[ix] * 10.0 * w.pa))
+
+    def _colour(self, st: _Sample, dref, part: slice):
+        """Lateral colour: each field's chief rays at the shortest and longest wavelengths
+        (:meth:`colour_models_at`), their retinal-tangent difference in arcmin, with exact
+        derivatives (the display layout's change included); ``colour_max`` hinges each
+        field's |difference| over ``lateral_colour_max_arcmin``."""
+        t, w, S, F, K = self.spec.targets, self.spec.weights, st.S, st.F, st.K
+        dd = None
+        if st.derivatives:
+            dd = dref["display"][part] if dref else np.zeros((S, F, 2, K))
+        D = np.array(st.model.depths)[st.subs.k][:, None, None]
+        ends = []
+        for m in self.colour_models_at(st.x):
+            ds = None if dd is None or st.dense else dd.reshape(-1, 2, K)
+            _, J = self._rays(m, st.subs, st.derivatives, ds, rho=np.zeros((1, 2)), record=[])
+            dsx = dd[:, :, None] if st.dense and dd is not None else None
+            _, r, _, dr = _retinal(J, (S, F, 1), D, K, st.derivatives, dsx)
+            ends.append(((J.status == 0).reshape(S, F), r[:, :, 0], None if dr is None else dr[:, :, 0]))
+        (ok_a, ra, dra), (ok_b, rb, drb) = ends
+        ok = ok_a & ok_b
+        e = np.where(ok[..., None], (ra - rb) * ARCMIN, 0.0)  # (S, F, 2)
+        de = np.where(ok[..., None, None], (dra - drb) * ARCMIN, 0.0) if st.derivatives else None
+        mag = np.linalg.norm(e, axis=-1)
+        st.figures.update(colour=mag, colour_ok=ok)
+        scale = w.colour / math.sqrt(st.S_all * F)
+        yield "colour", e * scale, de * scale if st.derivatives else None
+        if t.lateral_colour_max_arcmin is not None:
+            over = ok & (mag > t.lateral_colour_max_arcmin)
+
+            def jac(ix):
+                return (np.einsum("...a,...ak->...k", e[ix], de[ix]) / np.maximum(mag[ix], 1e-300)[..., None]
+                        * 10.0 * w.colour)
+
+            yield ("colour_max", *_hinge(st, over, (mag - t.lateral_colour_max_arcmin) * 10.0 * w.colour, jac))
+
+    def _colour_details(self, fig: dict) -> dict:
+        if "colour" not in fig:
+            return {}
+        ok, mag = fig["colour_ok"], fig["colour"]
+        return {"lateral_colour_max_arcmin": float(np.max(mag[ok])) if ok.any() else None,
+                "lateral_colour_mean_arcmin": float(np.mean(mag[ok])) if ok.any() else None}
 
     def _distortion(self, st: _Sample):
         """Local distortion of each EI beyond its maximum (metrics.distortion: chief rays
