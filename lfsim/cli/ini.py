@@ -111,7 +111,7 @@ def cmd_analyze(args) -> int:
     if s.get("lateral_colour_wavelengths_nm"):
         lo, hi = s["lateral_colour_wavelengths_nm"]
         print(f"  lateral colour {lo:.1f}-{hi:.1f} nm: max {_num(s['lateral_colour_max_arcmin'], '.3f')}', "
-              f"mean {_num(s['lateral_colour_mean_arcmin'], '.3f')}' (chief rays; the figures above are at "
+              f"mean {_num(s['lateral_colour_mean_arcmin'], '.3f')}' (chief rays; every other figure is at "
               f"{doc['wavelength_nm']:g} nm)")
     for D, b in doc["by_depth"].items():
         print(f"  CDP {D} D: contrast min {_num(b['contrast_nyquist_min'], '.3f')} "
