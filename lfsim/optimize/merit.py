@@ -340,16 +340,19 @@ class IniMerit:
             self._model = (key, self._build_model(np.asarray(x, dtype=np.float64)))
         return self._model[1]
 
-    def _build_model(self, x) -> IniModel:
+    def _build_model(self, x, base: IniModel | None = None, powers=None) -> IniModel:
+        """The model at ``x`` at ``base``'s wavelength (default the start's model), the tunable
+        lens at ``powers`` (diopters; default the variables', else solved)."""
+        m0 = self.model0 if base is None else base
+        powers = self._powers(x) if powers is None else powers
         arrays = self.design0.system.arrays
         if any(c.state is None and c.name.split(".")[0] in arrays for c in self.cols):
-            return IniModel(self.design_at(x))
-        m0 = self.model0
+            return IniModel(self.design_at(x), wavelength_nm=m0.lam, tunable_power_diopters=powers)
         v = m0.values0.copy()
         for c, val in zip(self.cols, x):
             if c.state is None:
                 v[m0.tracer.index[c.name]] = val
-        return IniModel(self.design0, values=v, tunable_power_diopters=self._powers(x))
+        return IniModel(self.design0, wavelength_nm=m0.lam, values=v, tunable_power_diopters=powers)
 
     def colour_models_at(self, x) -> list[IniModel]:
         """The InI models at ``x`` for the shortest and longest wavelengths (the last pair is
@@ -359,21 +362,7 @@ class IniMerit:
         if self._colour_models is None or self._colour_models[0] != key:
             primary = self.model_at(x)
             powers = None if primary.tl_power[0] is None else [1000.0 * p for p in primary.tl_power]
-            arrays = self.design0.system.arrays
-            if any(c.state is None and c.name.split(".")[0] in arrays for c in self.cols):
-                design = self.design_at(x)
-                models = [IniModel(design, wavelength_nm=w, tunable_power_diopters=powers)
-                          for w in self.colour_wavelengths]
-            else:
-                models = []
-                for m0 in self._colour0:
-                    v = m0.values0.copy()
-                    for c, val in zip(self.cols, x):
-                        if c.state is None:
-                            v[m0.tracer.index[c.name]] = val
-                    models.append(IniModel(self.design0, wavelength_nm=m0.lam, values=v,
-                                           tunable_power_diopters=powers))
-            self._colour_models = (key, models)
+            self._colour_models = (key, [self._build_model(x, m0, powers) for m0 in self._colour0])
         return self._colour_models[1]
 
     # ------------------------------------------------------------ pieces
@@ -562,8 +551,7 @@ class IniMerit:
         if derivatives:
             dsurf = J.d_surf.reshape(S, F, R, nrec, 2, K)
             dcos = J.d_cos_in.reshape(S, F, R, nrec, K)
-            if dense:  # the chain rule in numpy, from the display-point derivatives
-                dsx = ds.reshape(S, F, R, 2, K)
+            if dense:  # the chain rule in numpy, from the display-point derivatives (dsx above)
                 dsurf = dsurf + np.einsum("sfrjab,sfrbk->sfrjak", J.ds_surf.reshape(S, F, R, nrec, 2, 2), dsx)
                 dcos = dcos + np.einsum("sfrjb,sfrbk->sfrjk", J.ds_cos_in.reshape(S, F, R, nrec, 2), dsx)
             st.dpos, st.dsurf, st.dcos, st.dr = dpos, dsurf, dcos, dr
