@@ -37,7 +37,6 @@ gradient, the recovered values, their errors, the evaluations and the time.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import sys
@@ -45,6 +44,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from lfsim.cli import OneLineParser
 
 ROOT = Path(__file__).resolve().parents[1]
 PARAMS = ("TL.power", "MLA.thickness")
@@ -122,7 +123,7 @@ def run(problem: str = "natural", design_path=ROOT / "scenes/ini_ideal.toml",
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = OneLineParser(description=__doc__.split("\n")[0])
     ap.add_argument("--problem", default=",".join(PROBLEMS), help="recover, natural, or both (comma separated)")
     ap.add_argument("--design", default=str(ROOT / "scenes/ini_ideal.toml"))
     ap.add_argument("--content", default=str(ROOT / "scenes/fig9_wall.toml"))

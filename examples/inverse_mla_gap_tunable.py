@@ -23,7 +23,6 @@ their relative errors, the iterations and the wall time.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import sys
@@ -31,6 +30,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from lfsim.cli import OneLineParser
 
 ROOT = Path(__file__).resolve().parents[1]
 PARAMS = ("object.distance", "TL.power")
@@ -92,7 +93,7 @@ def run(design_path=ROOT / "scenes/ini_ideal.toml", content_path=ROOT / "scenes/
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = OneLineParser(description=__doc__.split("\n")[0])
     ap.add_argument("--design", default=str(ROOT / "scenes/ini_ideal.toml"))
     ap.add_argument("--content", default=str(ROOT / "scenes/fig9_wall.toml"))
     ap.add_argument("--resolution", default="96,54")

@@ -41,8 +41,8 @@ the package's:
 * axial and lateral colour (first-order chromatic sums ``C_I``, ``C_II``,
   F − C, for the same rays) no larger than the design's own relay's times
   ``--colour-max`` (default 1). ``lfsim optimize``'s InI merit is
-  monochromatic, so colour that the relay adds is colour the optimized design
-  keeps: four singlets in a dense flint-like lanthanum glass flatten the
+  monochromatic unless its ``colour`` weight is set, so colour that the relay
+  adds is colour the optimized design keeps: four singlets in a dense flint-like lanthanum glass flatten the
   field best but, without this rule, fringe the retinal image.
 
 For each assignment of glasses and each track limit (tightest first), SLSQP
@@ -62,7 +62,6 @@ It prints one line per limit and glass assignment and writes
 
 from __future__ import annotations
 
-import argparse
 import copy
 import itertools
 import json
@@ -77,6 +76,7 @@ import tomli_w
 from relay_variants import LENSES, _curvature, _shift_after_relay  # examples/, beside this script
 from scipy.optimize import minimize
 
+from lfsim.cli import OneLineParser
 from lfsim.optics.materials import lookup
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -479,23 +479,33 @@ def write_variant(raw: dict, r: Relay, glasses, phis, ref_length: float,
 def search(S: Search, glasses, lam: float, starts: int, seed: int, warm=()):
     """The least field curvature over SLSQP runs from ``warm`` (e.g. the best relay under a
     tighter limit, feasible under this one) and ``starts`` more (the reference relay in these
-    glasses, then random perturbations of it): ``(x, objective, feasible runs)`` or None."""
+    glasses, then random perturbations of it): ``(x, objective, feasible runs, origin)`` or
+    None. ``origin`` says which start the best run came from ("warm", "reference",
+    "random N"), and "reference, unmoved" when SLSQP left the reference relay where it was:
+    then no start found a flatter relay than the design's own, re-glassed."""
     n = np.array([float(lookup(g).index(lam)) for g in glasses])
     dn = np.array([dispersion(g) for g in glasses])
     rng = np.random.default_rng(seed)
     best, feasible = None, 0
     x0s = [np.asarray(w, dtype=np.float64) for w in warm]
     x0s += [S.start(n, rng, spread=1.0 if s else 0.0) for s in range(starts)]
-    for x0 in x0s:
+    for i, x0 in enumerate(x0s):
         x, P, ok = S.solve(n, dn, x0)
         feasible += ok
         if ok and (best is None or abs(P) < abs(best[1])):
-            best = (x, P)
-    return None if best is None else (best[0], best[1], feasible)
+            best = (x, P, i)
+    if best is None:
+        return None
+    x, P, i = best
+    k = i - len(warm)
+    origin = "warm" if k < 0 else "reference" if k == 0 else f"random {k}"
+    if k == 0 and np.allclose(x, x0s[i], rtol=1e-9, atol=1e-12):
+        origin = "reference, unmoved"
+    return x, P, feasible, origin
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = OneLineParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--design", default=str(ROOT / "scenes" / "ini_wearable_optimized.toml"),
                     help="an InI design with AA, two singlets, the tunable lens, two singlets "
                          "(default: %(default)s)")
@@ -571,7 +581,7 @@ def main(argv=None) -> int:
             row.update(field_curvature=None, feasible_runs=0)
             print(f"track <= {lim:g} mm, {','.join(glasses)}: no feasible relay in {args.starts + len(warm)} runs")
         else:
-            x, fc, nf = found
+            x, fc, nf, origin = found
             fc, nf = float(fc), int(nf)
             r = S._relay(x, np.array([float(lookup(g).index(lam)) for g in glasses]),
                          np.array([dispersion(g) for g in glasses]))
@@ -581,7 +591,8 @@ def main(argv=None) -> int:
             semi = S.lens_semi_diameters(face)
             sums = seidel(r, x[18], S.marginal, S.chief)
             colour = sums[4:6] / S.seidel0[4:6]
-            row.update(field_curvature=fc, petzval_per_mm=P, feasible_runs=nf, colour_ratio=colour.tolist(),
+            row.update(field_curvature=fc, petzval_per_mm=P, feasible_runs=nf, best_start=origin,
+                       colour_ratio=colour.tolist(),
                        seidel=sums.tolist(), track_mm=track + r.length - ref.length,
                        relay_length_mm=r.length, gaps_mm=r.gaps.tolist(), c1=r.c1.tolist(), c2=r.c2.tolist(),
                        thickness_mm=r.t.tolist(), semi_diameter_mm=semi.tolist(),
@@ -591,7 +602,9 @@ def main(argv=None) -> int:
                   f"(track {row['track_mm']:.2f} mm, axial / lateral colour {colour[0]:.2f} / {colour[1]:.2f} "
                   f"of the design's relay, "
                   f"lens powers {', '.join(f'{v:.1f}' for v in row['lens_power_diopters'])} D; "
-                  f"{nf} of {args.starts + len(warm)} runs feasible)")
+                  f"{nf} of {args.starts + len(warm)} runs feasible, best from the {origin} start)")
+            if origin == "reference, unmoved":
+                print("  (no start found a flatter relay than the design's own, re-glassed; more --starts may)")
             if args.write:
                 tag = f"track{'none' if math.isinf(lim) else f'{lim:g}'}_{'-'.join(glasses)}"
                 p = out / f"{tag}.toml"

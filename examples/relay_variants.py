@@ -25,7 +25,6 @@ image is lost", lists what this measured on the wearable design.
 
 from __future__ import annotations
 
-import argparse
 import copy
 import json
 import subprocess
@@ -35,6 +34,7 @@ from pathlib import Path
 
 import tomli_w
 
+from lfsim.cli import OneLineParser
 from lfsim.optics.materials import lookup
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -148,7 +148,7 @@ def first_order(path: Path) -> list[dict]:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = OneLineParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--design", default=str(ROOT / "scenes" / "ini_wearable_optimized.toml"))
     ap.add_argument("--lenses", default=",".join(LENSES), help="front faces of the relay singlets")
     ap.add_argument("--glass", default="N-LASF31A", help="the glass of the 'glass' variant")

@@ -66,7 +66,6 @@ Run::
 
 from __future__ import annotations
 
-import argparse
 import copy
 import math
 import time
@@ -78,6 +77,7 @@ import numpy as np
 
 import lfsim
 from lfsim.analysis.ini_analysis import evaluate, summarize
+from lfsim.cli import OneLineParser
 from lfsim.fileio import save_figure, write_json
 from lfsim.ini.first_order import ini_first_order
 from lfsim.ini.model import IniModel
@@ -612,7 +612,7 @@ def format_table(rows) -> str:
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = OneLineParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default=str(ROOT / "docs" / "img"), help="folder for the JSON and the figures")
     args = ap.parse_args(argv)
     run(Path(args.out))

@@ -115,3 +115,18 @@ def test_the_design_relay_obeys_the_rules_and_a_found_relay_keeps_the_first_orde
     for a, b in zip(first_order(path), first_order(p)):
         for k in KEYS:
             assert np.allclose(np.atleast_1d(b[k]), np.atleast_1d(a[k]), rtol=0, atol=1e-6), (k, a[k], b[k])
+
+
+@pytest.mark.parametrize("argv, said", [
+    (["--starts", "0"], "--starts 0: at least 1"),
+    (["--glasses", "N-LAK22,N-LAK22"], "--glasses 'N-LAK22,N-LAK22': four glasses, one per singlet"),
+    (["--colour-max", "-1"], "--colour-max -1.0: a positive number or inf"),
+    (["--track-limits", "150,abc"], "--track-limits '150,abc': numbers in mm"),
+])
+def test_bad_arguments_give_one_line_and_write_nothing(tmp_path, capsys, argv, said):
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as e:
+        rp.main(["--out", str(out), *argv])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and err.count("\n") == 1 and said in err and "usage" not in err, err
+    assert not out.exists()

@@ -14,23 +14,15 @@ from .. import __version__, budget, progress
 from ..backend import BackendError
 from ..design import DesignError
 from . import ini, optics, render, tolerance, vision
-from .common import InputError
+from .common import InputError, OneLineParser
 from .optics import read_rays_csv
 
-__all__ = ["InputError", "build_parser", "main", "read_rays_csv"]
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse with a one-line error (exit status 2) instead of the usage text."""
-
-    def error(self, message):
-        verb = self.prog.removeprefix("lfsim").strip()  # "lfsim focal-stack" -> "focal-stack"
-        self.exit(2, f"lfsim: error: {verb + ': ' if verb else ''}{' '.join(message.split())}\n")
+__all__ = ["InputError", "OneLineParser", "build_parser", "main", "read_rays_csv"]
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="lfsim", description="lfsim: light-field rendering simulator for integral-imaging head-mounted "
-                "displays (design, analyze, optimize, render focal stacks).")
+    p = OneLineParser(prog="lfsim", description="lfsim: light-field rendering simulator for integral-imaging "
+                      "head-mounted displays (design, analyze, optimize, render focal stacks).")
     p.add_argument("--version", action="version", version=f"lfsim {__version__}")
     sub = p.add_subparsers(dest="verb", required=True, metavar="VERB")
     for verbs in (optics, ini, render, tolerance, vision):

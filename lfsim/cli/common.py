@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 from pathlib import Path
@@ -11,6 +12,18 @@ import numpy as np
 
 class InputError(Exception):
     """Bad command-line input (already formatted as one line)."""
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse with a one-line error (exit status 2) instead of the usage text: ``lfsim:
+    error: VERB: ...`` for the command line's verbs, ``PROG: error: ...`` for a script."""
+
+    def error(self, message):
+        said = " ".join(str(message).split())
+        if self.prog == "lfsim" or self.prog.startswith("lfsim "):
+            verb = self.prog.removeprefix("lfsim").strip()  # "lfsim focal-stack" -> "focal-stack"
+            self.exit(2, f"lfsim: error: {verb + ': ' if verb else ''}{said}\n")
+        self.exit(2, f"{self.prog}: error: {said}\n")
 
 
 def _load_design(args, path=None):
