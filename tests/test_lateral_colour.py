@@ -11,7 +11,7 @@ import pytest
 from helpers import SMALL, small_ini
 
 import lfsim
-from lfsim.analysis.ini_analysis import analyze, lateral_colour
+from lfsim.analysis.ini_analysis import analyze, evaluate, lateral_colour, polychromatic_contrast
 from lfsim.ini.model import IniModel
 from lfsim.ini.subsystems import sample
 from lfsim.metrics.spot import ARCMIN
@@ -106,3 +106,37 @@ def test_metrics_json_reports_lateral_colour_and_none_for_one_wavelength(tmp_pat
     assert one["summary"]["lateral_colour_max_arcmin"] is None
     assert one["summary"]["lateral_colour_wavelengths_nm"] is None
     assert all(sub["lateral_colour_arcmin"] is None for sub in one["subsystems"])
+
+
+def test_polychromatic_contrast_tends_to_the_monochromatic_one_without_colour():
+    """Wavelengths 0.1 pm apart in a glass without dispersion: the polychromatic OTF is the
+    monochromatic one (same rays, same image point), so its contrast is the analysis's own."""
+    waves = [587.5617, 587.5618, 587.5619]
+    model = IniModel(_design(_text(glass="1.5168", wavelengths=waves)))
+    res = evaluate(model, sample(model, stride=(2, 1)), refine=0)
+    poly = polychromatic_contrast(res)
+    assert poly["wavelengths_nm"] == waves
+    assert np.min(res["contrast"]) > 0.05
+    assert np.allclose(poly["contrast"], res["contrast"], rtol=1e-5, atol=1e-7)
+
+
+def test_polychromatic_contrast_in_metrics_json(tmp_path):
+    """Reported when asked (summary, per depth, per field), null when not or with one wavelength;
+    with N-BK7's dispersion it differs from the monochromatic contrast."""
+    doc = analyze(_design(_text()), out_dir=tmp_path / "a", stride=(2, 1), plots=False, polychromatic=True)
+    s = doc["summary"]
+    per_field = [v for sub in doc["subsystems"] for v in sub["contrast_nyquist_poly_fields"]]
+    mono = [v for sub in doc["subsystems"] for v in sub["contrast_nyquist_fields"]]
+    assert s["contrast_poly_wavelengths_nm"] == WAVELENGTHS
+    assert s["contrast_nyquist_poly_min"] == pytest.approx(min(per_field), rel=1e-12)
+    assert s["contrast_nyquist_poly_mean"] == pytest.approx(np.mean(per_field), rel=1e-12)
+    assert all(0 <= v <= 1 for v in per_field) and np.max(np.abs(np.subtract(per_field, mono))) > 1e-3
+    for b in doc["by_depth"].values():
+        assert s["contrast_nyquist_poly_min"] <= b["contrast_nyquist_poly_min"] <= b["contrast_nyquist_poly_mean"]
+    off = analyze(_design(_text()), stride=(2, 1), plots=False)
+    one = analyze(_design(_text(wavelengths=[587.5618])), stride=(2, 1), plots=False, polychromatic=True)
+    for d in (off, one):
+        s_ = d["summary"]
+        assert s_["contrast_nyquist_poly_mean"] is None and s_["contrast_poly_wavelengths_nm"] is None
+        assert all(sub["contrast_nyquist_poly_fields"] is None for sub in d["subsystems"])
+    assert off["summary"]["contrast_nyquist_mean"] == doc["summary"]["contrast_nyquist_mean"]

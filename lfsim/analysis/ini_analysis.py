@@ -152,7 +152,7 @@ def evaluate(model: IniModel, subs=None, progress: bool = False, mtf_freqs_cpd=N
                      / np.maximum(np.sum(ok[:, :, g], axis=-1), 1)) / (model.lam * 1e-6)
     vignetted = 1.0 - np.mean(ok[:, :, sl["gl2"]], axis=-1)
     res = dict(model=model, subs=subs, sets=sets, bundle=bundle, states=states, r=r, r_par=r_par,
-               par=par, gd=gd, local=local, pa=pa, pa_ok=marg_ok, chief_ok=chief_ok, rms=rms, rms_n=rms_n,
+               cen=cen, par=par, gd=gd, local=local, pa=pa, pa_ok=marg_ok, chief_ok=chief_ok, rms=rms, rms_n=rms_n,
                geo=geo, dif=dif, contrast=contrast, wf_rms=wf_rms, vignetted=vignetted,
                freqs_cpd=freqs_cpd, nyquist_cpd=nyq, i_nyq=i_nyq, t_trace=t_trace)
     levels = spec.refine if refine is None else int(refine)
@@ -161,16 +161,17 @@ def evaluate(model: IniModel, subs=None, progress: bool = False, mtf_freqs_cpd=N
     return res
 
 
-def _diffraction(model: IniModel, bundle: Bundle, sets: PupilSets, r, cen, D, freqs_cpd):
-    """Wavefront (mm) over the stop's FFT grid and the diffraction MTF at ``freqs_cpd`` (…, freq, orientation)."""
+def _diffraction(model: IniModel, bundle: Bundle, sets: PupilSets, r, cen, D, freqs_cpd, otf: bool = False):
+    """Wavefront (mm) over the stop's FFT grid and the diffraction MTF at ``freqs_cpd`` (…, freq,
+    orientation); ``otf``: the complex OTF instead, its phase referred to the image point ``cen``."""
     ok, g = bundle.ok, sets.slices["mtf"]
     opd, pup, _ = mtf.reference_opd(bundle.pos[:, :, g], bundle.dir[:, :, g], bundle.opl[:, :, g],
                                     ok[:, :, g], cen, D[:, None])
     if opd_method(model) == "slopes":
         off_g = spot.angular_offsets(r[:, :, g], cen)
         opd = mtf.wavefront_from_slopes(sets.rho[g], pup, off_g, ok[:, :, g])
-    dif = mtf.diffraction_mtf(sets.rho[g], pup, opd, ok[:, :, g], model.lam,
-                              np.asarray(freqs_cpd, dtype=np.float64) * CPD_TO_CPR)
+    fn = mtf.diffraction_otf if otf else mtf.diffraction_mtf
+    dif = fn(sets.rho[g], pup, opd, ok[:, :, g], model.lam, np.asarray(freqs_cpd, dtype=np.float64) * CPD_TO_CPR)
     return opd, dif
 
 
@@ -283,6 +284,40 @@ def lateral_colour(model: IniModel, subs: Subsystems) -> dict | None:
     return {"wavelengths_nm": [w[0], w[-1]], "arcmin": np.where(ok, angle * spot.ARCMIN, np.nan), "ok": ok}
 
 
+def polychromatic_contrast(res: dict) -> dict | None:
+    """The contrast at Nyquist of the polychromatic diffraction MTF, per sub-system and field:
+    ``{"wavelengths_nm": [...], "contrast": (S, F)}``, or None for a design of one wavelength.
+
+    Every wavelength of ``[system] wavelengths_nm`` is traced through the same sub-systems and
+    pupil grid (the tunable lens at the primary wavelength's powers, as in
+    :func:`lateral_colour`); each one's wavefront is referred to the same image point, the
+    primary wavelength's spot centroid, so its OTF carries its lateral shift as a phase and its
+    axial colour as defocus. The OTFs are averaged with equal weights (the lens-design default)
+    and the contrast is the modulus at Nyquist, the smaller of the two orientations, like the
+    monochromatic ``contrast``. Lateral colour of δ between two equal wavelengths lowers the
+    contrast by ``|cos(π ν δ)|``.
+    """
+    model, subs, sets = res["model"], res["subs"], res["sets"]
+    waves = sorted({float(v) for v in model.system.wavelengths_nm})
+    if len(waves) < 2:
+        return None
+    powers = [model.state(k).tunable_power_diopters for k in range(len(model.depths))]
+    powers = None if any(p is None for p in powers) else powers
+    others = [x for x in waves if x != float(model.lam)]
+    models = [IniModel(model.design, wavelength_nm=x, precision=model.tracer.precision,
+                       tunable_power_diopters=powers) for x in others]
+    bundles = dict(zip(others, trace_many(models, subs, sets.rho)))
+    models = dict(zip(others, models))
+    D = np.array(model.depths)[subs.k]
+    nyq = np.array([res["nyquist_cpd"]])
+    total = 0.0
+    for x in waves:
+        m, b = (model, res["bundle"]) if x not in models else (models[x], bundles[x])
+        r = res["r"] if b is res["bundle"] else spot.retinal_tan(b.pos, b.slopes(), D[:, None, None])
+        total = total + _diffraction(m, b, sets, r, res["cen"], D, nyq, otf=True)[1][..., 0, :]
+    return {"wavelengths_nm": waves, "contrast": np.min(np.abs(total) / len(waves), axis=-1)}
+
+
 def summarize(res: dict, package: bool = True) -> dict:
     """The ``metrics.json`` document (the contract in docs/contracts.md plus per-sub-system details).
 
@@ -295,6 +330,8 @@ def summarize(res: dict, package: bool = True) -> dict:
     model, subs, spec = res["model"], res["subs"], res["model"].spec
     arcmin = spot.ARCMIN
     lc = res.get("lateral_colour")
+    poly = res.get("polychromatic")
+    pc = poly["contrast"] if poly else None
     pa_ok, gd_ok = res["pa_ok"], res["chief_ok"][:, 0]
     pa_sub = np.max(np.where(pa_ok, res["pa"], -np.inf), axis=1)
     sub_ok = np.any(pa_ok, axis=1)
@@ -311,6 +348,7 @@ def summarize(res: dict, package: bool = True) -> dict:
             "contrast_nyquist": _f(c_min[i]),
             "contrast_nyquist_fields": [_f(v) for v in res["contrast"][i]],
             "contrast_nyquist_worst_field": [_f(v) for v in refined["field"][i]] if refined else None,
+            "contrast_nyquist_poly_fields": [_f(v) for v in pc[i]] if poly else None,
             "rms_spot_arcmin": [_f(v * arcmin) for v in res["rms"][i]],
             "local_distortion_pct_max": _f(100 * np.max(res["local"][i])),
             "wavefront_rms_waves": [_f(v) for v in res["wf_rms"][i]],
@@ -328,6 +366,8 @@ def summarize(res: dict, package: bool = True) -> dict:
         c = res["contrast"][sel]
         by_depth[f"{D:g}"] = {
             "contrast_nyquist_min": _f(np.min(c_min[sel])), "contrast_nyquist_mean": _f(np.mean(c)),
+            "contrast_nyquist_poly_min": _f(np.min(pc[sel])) if poly else None,
+            "contrast_nyquist_poly_mean": _f(np.mean(pc[sel])) if poly else None,
             "rms_spot_mean_arcmin": _f(np.mean(res["rms"][sel]) * arcmin),
             "rms_spot_max_arcmin": _f(np.max(res["rms"][sel]) * arcmin),
             "gd_max_deg": _masked(np.max, res["gd"][sel], gd_ok[sel]),
@@ -351,6 +391,9 @@ def summarize(res: dict, package: bool = True) -> dict:
         "fields_per_subsystem": int(subs.fields.shape[0]), "nyquist_cpd": _f(res["nyquist_cpd"]),
         "contrast_nyquist_min": _f(np.min(c_min)), "contrast_nyquist_mean": _f(np.mean(res["contrast"])),
         "contrast_nyquist_min_grid": _f(np.min(res["contrast"])),
+        "contrast_nyquist_poly_min": _f(np.min(pc)) if poly else None,
+        "contrast_nyquist_poly_mean": _f(np.mean(pc)) if poly else None,
+        "contrast_poly_wavelengths_nm": poly["wavelengths_nm"] if poly else None,
         "contrast_refine_levels": refined["levels"] if refined else 0,
         "contrast_refine_s": round(refined["seconds"], 3) if refined else 0.0,
         "rms_spot_mean_arcmin": _f(np.mean(res["rms"]) * arcmin),
@@ -373,12 +416,14 @@ def summarize(res: dict, package: bool = True) -> dict:
 
 
 def analyze(design, out_dir=None, stride=None, symmetry=None, depths_diopters=None,
-            progress: bool = False, plots: bool = True, reference=None) -> dict:
+            progress: bool = False, plots: bool = True, reference=None, polychromatic: bool = False) -> dict:
     """Evaluate every sampled sub-system and write ``metrics.json`` and the plots.
 
     ``depths_diopters`` restricts the CDP states (values from the design's
     list). ``reference``: a nominal Design whose display layout and paraxial
-    rays GD and PA are measured against (see :func:`evaluate`). Returns the
+    rays GD and PA are measured against (see :func:`evaluate`). ``polychromatic``: also the
+    contrast of the polychromatic MTF (:func:`polychromatic_contrast`; it traces every
+    wavelength, so it is off by default). Returns the
     metrics document (also written to ``out_dir``, a folder replaced as a
     whole on success: see :func:`lfsim.fileio.atomic_dir`).
     """
@@ -401,6 +446,7 @@ def analyze(design, out_dir=None, stride=None, symmetry=None, depths_diopters=No
     subs = sample(ref, stride=stride, symmetry=symmetry, depths=depths)
     res = evaluate(model, subs, progress=progress, reference=None if ref is model else ref)
     res["lateral_colour"] = lateral_colour(model, subs)
+    res["polychromatic"] = polychromatic_contrast(res) if polychromatic else None
     doc = summarize(res)
     if ref is not model:
         doc["reference"] = ref.file

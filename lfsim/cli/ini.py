@@ -93,7 +93,7 @@ def cmd_analyze(args) -> int:
             raise InputError(f"{args.reference}: ini = missing: a --reference design needs an [ini] section")
     doc = analyze(design, args.out, stride=stride, symmetry=args.symmetry, depths_diopters=depths,
                   progress=not args.json, plots=not args.no_plots,
-                  reference=reference)
+                  reference=reference, polychromatic=args.polychromatic)
     if args.json:
         print(_dump(doc))
         return 0
@@ -113,6 +113,12 @@ def cmd_analyze(args) -> int:
         print(f"  lateral colour {lo:.1f}-{hi:.1f} nm: max {_num(s['lateral_colour_max_arcmin'], '.3f')}', "
               f"mean {_num(s['lateral_colour_mean_arcmin'], '.3f')}' (chief rays; every other figure is at "
               f"{doc['wavelength_nm']:g} nm)")
+    if s.get("contrast_poly_wavelengths_nm"):
+        waves = "/".join(f"{v:.1f}" for v in s["contrast_poly_wavelengths_nm"])
+        per_depth = " / ".join(_num(b["contrast_nyquist_poly_mean"], ".3f") for b in doc["by_depth"].values())
+        print(f"  polychromatic contrast at Nyquist ({waves} nm, equal weights): min "
+              f"{_num(s['contrast_nyquist_poly_min'], '.3f')}, mean {_num(s['contrast_nyquist_poly_mean'], '.3f')}"
+              f" ({per_depth} at {' / '.join(doc['by_depth'])} D)")
     for D, b in doc["by_depth"].items():
         print(f"  CDP {D} D: contrast min {_num(b['contrast_nyquist_min'], '.3f')} "
               f"mean {_num(b['contrast_nyquist_mean'], '.3f')}, "
@@ -206,6 +212,9 @@ def register(sub) -> None:
     an.add_argument("--symmetry", choices=("none", "x", "y", "xy"), help="skip mirror-image lenslets")
     an.add_argument("--depths", help="CDP depths to evaluate, diopters, comma separated (default all)")
     an.add_argument("--reference", help="nominal design: GD and PA against its display layout and paraxial rays")
+    an.add_argument("--polychromatic", action="store_true",
+                    help="also the contrast at Nyquist of the polychromatic MTF (every [system] wavelength, "
+                         "equal weights, one image point: lateral colour lowers it); traces each wavelength")
     an.add_argument("--no-plots", action="store_true")
     _add_set(an)
     an.add_argument("--json", action="store_true")

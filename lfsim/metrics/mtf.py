@@ -137,7 +137,14 @@ def affine_fit(rho: np.ndarray, pupil: np.ndarray, ok: np.ndarray) -> np.ndarray
 
 def diffraction_mtf(rho: np.ndarray, pupil: np.ndarray, opd_mm: np.ndarray, ok: np.ndarray,
                     wavelength_nm: float, freqs: np.ndarray, chunk: int = 256) -> np.ndarray:
-    """Diffraction MTF from the optical path across the lenslet's square stop.
+    """Diffraction MTF from the optical path across the lenslet's square stop: the modulus of
+    :func:`diffraction_otf` (which see)."""
+    return np.abs(diffraction_otf(rho, pupil, opd_mm, ok, wavelength_nm, freqs, chunk))
+
+
+def diffraction_otf(rho: np.ndarray, pupil: np.ndarray, opd_mm: np.ndarray, ok: np.ndarray,
+                    wavelength_nm: float, freqs: np.ndarray, chunk: int = 256) -> np.ndarray:
+    """Diffraction OTF (complex) from the optical path across the lenslet's square stop.
 
     ``rho`` (n², 2) is the :func:`~lfsim.metrics.pupil.mtf_grid` of the stop;
     ``pupil`` (..., n², 2) the rays' positions projected normal to the beam
@@ -148,8 +155,12 @@ def diffraction_mtf(rho: np.ndarray, pupil: np.ndarray, opd_mm: np.ndarray, ok: 
     distortion beyond affine is neglected, as lens-design programs' FFT MTF
     does), so a visual frequency ν (cycles/rad) along axis a is the shift
     ``Δρ = A⁻¹·λν·e_a`` of the autocorrelation, read by bilinear interpolation.
-    Returns (..., K, 2) like :func:`geometric_mtf`. A diffraction-limited
-    square pupil of width w gives ``1 − ν λ / w`` exactly.
+    Returns (..., K, 2) complex, like :func:`geometric_mtf` (its modulus is the
+    MTF). A diffraction-limited square pupil of width w gives ``1 − ν λ / w``
+    exactly; a tilt of the wavefront that moves the image by an angle δ along
+    the axis multiplies it by ``exp(−2πi ν δ)``, so OTFs of several wavelengths,
+    each with its path referred to the same image point, add to the
+    polychromatic OTF (lateral colour lowers its modulus).
 
     References
     ----------
@@ -166,7 +177,7 @@ def diffraction_mtf(rho: np.ndarray, pupil: np.ndarray, opd_mm: np.ndarray, ok: 
     okf = ok.reshape(L, n * n)
     lam = wavelength_nm * 1e-6
     freqs = np.asarray(freqs, dtype=np.float64)
-    out = np.zeros((L, len(freqs), 2))
+    out = np.zeros((L, len(freqs), 2), dtype=np.complex128)
     A_all = affine_fit(rho, pup, okf)
     for a0 in range(0, L, chunk):
         a1 = min(L, a0 + chunk)
@@ -189,7 +200,7 @@ def diffraction_mtf(rho: np.ndarray, pupil: np.ndarray, opd_mm: np.ndarray, ok: 
                 coords = np.array([n + cells[:, 1], n + cells[:, 0]])
                 re = map_coordinates(ac[j].real, coords, order=1, mode="constant", cval=0.0)
                 im = map_coordinates(ac[j].imag, coords, order=1, mode="constant", cval=0.0)
-                out[a0 + j, :, ax] = np.hypot(re, im)
+                out[a0 + j, :, ax] = re + 1j * im
     return out.reshape(lead + (len(freqs), 2))
 
 
