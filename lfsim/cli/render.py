@@ -29,11 +29,16 @@ def cmd_focal_stack(args) -> int:
         raise InputError(f"--wavelength-samples = {args.wavelength_samples}: must be >= 1")
     if args.ei_spp < 1:
         raise InputError(f"--ei-spp = {args.ei_spp}: must be >= 1")
+    if args.ei_colour and (args.wavelength_nm is not None or args.optics == "mesh"):
+        what = f"--wavelength-nm {args.wavelength_nm:g}" if args.wavelength_nm is not None else "--optics mesh"
+        raise InputError(f"--ei-colour with {what}: per-channel elemental images need a spectral render "
+                         "(the analytic optics, no --wavelength-nm)")
     spec = FocalStackSpec(focus_mm=[float(f) for f in focus], cdp_mm=cdp, pupil_diameter_mm=float(pupil),
                           spp=args.spp, resolution=res, seed=args.seed, eye_model=args.eye,
                           mla_cells=args.mla_cells, optics=args.optics, tessellation=args.tessellation,
                           wavelength_nm=args.wavelength_nm, wavelength_samples=args.wavelength_samples,
-                          diffraction=not args.no_diffraction, ei_spp=args.ei_spp, ei_bundle=args.ei_bundle)
+                          diffraction=not args.no_diffraction, ei_spp=args.ei_spp, ei_bundle=args.ei_bundle,
+                          ei_colour=args.ei_colour)
     quiet = args.json  # progress: a bar on a terminal, periodic lines in a log
     log = (lambda *a, **k: None) if args.json else (lambda msg: print(msg, file=sys.stderr))
     doc, _ = focal_stack(design, content, args.out, spec, progress=not quiet, log=log)
@@ -273,6 +278,9 @@ def register(sub) -> None:
     fs.add_argument("--ei-bundle", action="store_true",
                     help="anti-aliased elemental images: each pixel integrates over its ray bundle (pixel "
                     "area x lenslet stop, --ei-spp rays) instead of shading its chief ray")
+    fs.add_argument("--ei-colour", action="store_true",
+                    help="per-channel elemental images: each colour channel shaded along rays traced at its "
+                    "display primary's median wavelength, pre-correcting the optics' lateral colour")
     fs.add_argument("--focus-mm", help="eye focus distances, mm, comma separated (default: the content's)")
     fs.add_argument("--cdp-mm", help="CDP distance the tunable lens is set to, mm (inf allowed)")
     fs.add_argument("--pupil-mm", type=float, help="eye pupil diameter, mm (default: the content's, else 3)")

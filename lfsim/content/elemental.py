@@ -121,14 +121,16 @@ def _stop_samples(model, rng, n: int) -> np.ndarray:
     return 2.0 * u - 1.0
 
 
-def display_work(layout, content, spp: int, bundle: bool) -> int:
-    """Pixel-samples :func:`shade_display` reports to ``progress`` in all."""
+def display_work(layout, content, spp: int, bundle: bool, channels: int = 1) -> int:
+    """Pixel-samples :func:`shade_display` reports to ``progress`` in all (``channels``: 3 with
+    its ``channel_models``)."""
     n = layout.width * layout.height
-    return n * (int(spp) if (content.path_traced or bundle) else 1)
+    return n * (int(spp) if (content.path_traced or bundle) else 1) * int(channels)
 
 
 def shade_display(model, content, layout, method: str = "real", samples: int = 1, spp: int = 16,
-                  bundle: bool = False, seed: int = 0, k: int = 0, progress=None) -> ElementalImages:
+                  bundle: bool = False, seed: int = 0, k: int = 0, progress=None,
+                  channel_models=None) -> ElementalImages:
     """The elemental images of a :class:`~lfsim.content.ContentScene` on ``layout``'s display.
 
     * Self-luminous content (quads, RGB-D): the emission along each pixel's
@@ -139,6 +141,12 @@ def shade_display(model, content, layout, method: str = "real", samples: int = 1
       ``spp`` rays per pixel, each from a uniform point of the pixel's area
       through a uniform point of its lenslet's stop, traced through the real
       optics (rays vignetted on the way do not count).
+
+    ``channel_models``: three models of the same design (R, G, B; e.g. at each display
+    primary's median wavelength, the tunable lens at ``model``'s power): each colour channel
+    is shaded along the rays of its own model, so the elemental images pre-correct the
+    optics' lateral colour as they pre-correct its distortion (the display layout, the depth
+    and the normals stay ``model``'s). None: every channel along ``model``'s rays.
 
     ``progress(n)``: called with the pixel-samples done (:func:`display_work` in all).
     """
@@ -153,30 +161,39 @@ def shade_display(model, content, layout, method: str = "real", samples: int = 1
     src = content.scene
     scene = content.mitsuba_scene()
 
-    def rays_for_pass(p):
-        if p == 0 and not bundle:
-            o, d, ok = o0, d0, ok0
-        else:
-            rng = np.random.default_rng([int(seed), int(p), 0x1F5B])
-            jitter = (rng.random((len(centres), 2)) - 0.5) * layout.pixel_pitch
-            o, d, ok = visual_rays(model, layout, centres + jitter, method, k,
-                                   rho=_stop_samples(model, rng, len(centres)))
-        return (*content.rays_to_scene(o, d), ok)
+    def shade_with(m, o1, d1, ok1):
+        def rays_for_pass(p):
+            if p == 0 and not bundle:
+                o, d, ok = o1, d1, ok1
+            else:
+                rng = np.random.default_rng([int(seed), int(p), 0x1F5B])
+                jitter = (rng.random((len(centres), 2)) - 0.5) * layout.pixel_pitch
+                o, d, ok = visual_rays(m, layout, centres + jitter, method, k,
+                                       rho=_stop_samples(m, rng, len(centres)))
+            return (*content.rays_to_scene(o, d), ok)
 
-    if content.path_traced or bundle:
-        depth_max = src.max_depth if content.path_traced else 1  # 1: emission of the first hit
-        sh = pathtrace.render_rays(scene, rays_for_pass, W, H, spp, depth_max, seed=seed, fresh_rays=bundle,
-                                   progress=progress)
-        img, n_spp, noise = sh.image, sh.spp, sh.noise_rel
-    elif int(samples) == 1:  # the chief rays already traced
-        img = shade(scene, o0, d0, ok0, content.background).reshape(H, W, 3)
-        if progress is not None:
-            progress(W * H)
-        n_spp, noise = 1, None
+        if content.path_traced or bundle:
+            depth_max = src.max_depth if content.path_traced else 1  # 1: emission of the first hit
+            sh = pathtrace.render_rays(scene, rays_for_pass, W, H, spp, depth_max, seed=seed, fresh_rays=bundle,
+                                       progress=progress)
+            return sh.image, sh.spp, sh.noise_rel
+        if int(samples) == 1:  # the chief rays already traced
+            img1 = shade(scene, o1, d1, ok1, content.background).reshape(H, W, 3)
+            if progress is not None:
+                progress(W * H)
+            return img1, 1, None
+        return (elemental_images(m, scene, layout, method, samples, k, content.background, progress=progress),
+                int(samples) ** 2, None)
+
+    if channel_models is None:
+        img, n_spp, noise = shade_with(model, o0, d0, ok0)
     else:
-        img = elemental_images(model, scene, layout, method, samples, k, content.background,
-                               progress=progress)
-        n_spp, noise = int(samples) ** 2, None
+        if len(channel_models) != 3:
+            raise ValueError(f"channel_models: expected three models (R, G, B), got {len(channel_models)}")
+        parts = [shade_with(m, *visual_rays(m, layout, centres, method, k)) for m in channel_models]
+        img = np.stack([part[0][..., c] for c, part in enumerate(parts)], axis=-1)
+        n_spp = parts[0][1]
+        noise = None if parts[0][2] is None else float(max(part[2] for part in parts))
     depth, normal = content.first_surface(o0, d0, ok0)
     return ElementalImages(img, depth.reshape(H, W).astype(np.float32), normal.reshape(H, W, 3).astype(np.float32),
                            method, bool(bundle), content.path_traced, n_spp, noise, time.perf_counter() - t0)

@@ -67,6 +67,10 @@ class FocalStackSpec:
     # (pixel area × lenslet stop) instead of shading its chief ray.
     ei_spp: int = 16
     ei_bundle: bool = False
+    # Per-channel elemental images: each colour channel's pixels shaded along rays traced at its
+    # display primary's median wavelength, pre-correcting the optics' lateral colour (spectral
+    # renders on the analytic path only).
+    ei_colour: bool = False
     natural: bool = True
     mla_cells: str = "per_surface"  # "fixed": baffled lenslet cells (an ideal aperture array)
     optics: str = "analytic"  # "mesh": Mitsuba meshes of the optics, path-traced
@@ -257,19 +261,35 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None, ana
                  hint="lower --resolution or --spp")
     content_scene = content.mitsuba_scene()
 
+    passes = spec.wavelengths(model.lam, content.primaries)
+    channel_models = channel_wavelengths = None
+    if spec.ei_colour:
+        if passes[0].channel is None:
+            raise ValueError("ei_colour: per-channel elemental images need a spectral render (no wavelength_nm, "
+                             "analytic optics)")
+        from ..ini.model import IniModel
+        from .spectra import CHANNELS, DEFAULT_PRIMARIES
+
+        prim = content.primaries or DEFAULT_PRIMARIES
+        channel_wavelengths = [float(prim[c].quantiles([0.5])[0]) for c in CHANNELS]
+        power = state.tunable_power_diopters
+        channel_models = [IniModel(model.design, wavelength_nm=x, precision=model.tracer.precision,
+                                   tunable_power_diopters=None if power is None else [power])
+                          for x in channel_wavelengths]
     bar = None
     if progress:
         from ..progress import bar as tqdm
 
-        bar = tqdm(total=display_work(layout, content, spec.ei_spp, spec.ei_bundle), desc="elemental images",
+        bar = tqdm(total=display_work(layout, content, spec.ei_spp, spec.ei_bundle, 3 if channel_models else 1),
+                   desc="elemental images",
                    unit="px" if not (content.path_traced or spec.ei_bundle) else "sample", unit_scale=True,
                    leave=False)
     ei = shade_display(model, content, layout, method=spec.ei_method, samples=spec.ei_samples, spp=spec.ei_spp,
-                       bundle=spec.ei_bundle, seed=spec.seed, progress=bar.update if bar else None)
+                       bundle=spec.ei_bundle, seed=spec.seed, progress=bar.update if bar else None,
+                       channel_models=channel_models)
     display, t_ei = ei.image, ei.seconds
     if bar:
         bar.close()
-    passes = spec.wavelengths(model.lam, content.primaries)
     # The natural view is the real scene: broadband light through the sRGB colour-matching
     # functions, not the display's primaries (the same nodes count; monochrome stays monochrome).
     nat_passes = passes if passes[0].channel is None else spec.wavelengths(model.lam, natural_primaries())
@@ -285,6 +305,8 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None, ana
               extra={"depth.Z": ei.depth, "normal": ei.normal})
     write_png(out / "elemental_images.png", display)
     how = (f"{ei.spp} ray(s) per pixel over its bundle" if ei.bundle else f"{spec.ei_method} chief rays")
+    if channel_wavelengths:
+        how += ", R / G / B along rays at " + " / ".join(f"{v:.1f}" for v in channel_wavelengths) + " nm"
     if ei.path_traced:
         how += f", path-traced at {ei.spp} spp"
     noise = "" if ei.noise_rel is None else f", noise {100 * ei.noise_rel:.2f} % (standard error, RMS/mean)"
@@ -398,7 +420,7 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None, ana
            "fov_deg": [fx, fy], "resolution": [W, H], "seed": spec.seed,
            "display": {"width": layout.width, "height": layout.height, "pixel_pitch_mm": layout.pixel_pitch,
                        "exr": "elemental_images.exr", "png": "elemental_images.png",
-                       **ei.doc(), "method": spec.ei_method,
+                       **ei.doc(), "method": spec.ei_method, "channel_wavelengths_nm": channel_wavelengths,
                        "aovs": {"depth": "depth.Z", "normal": "normal"}},
            "images": images,
            "reference": {"exr": "reference_pinhole.exr", "png": "reference_pinhole.png",
