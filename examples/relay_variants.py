@@ -153,18 +153,26 @@ def main(argv=None) -> int:
     ap.add_argument("--lenses", default=",".join(LENSES), help="front faces of the relay singlets")
     ap.add_argument("--glass", default="N-LASF31A", help="the glass of the 'glass' variant")
     ap.add_argument("--out", required=True, help="folder for ideal.toml, glass.toml and their runs")
-    ap.add_argument("--variants", default="ideal,glass", help="which variants to build: ideal, glass or both")
+    ap.add_argument("--variants", default="ideal,glass",
+                    help="which variants to build: ideal, glass, ideal,glass or both (default: both)")
     ap.add_argument("--optimize", default=None, help="stages to re-optimize each variant with, e.g. coarse,freeform")
     args = ap.parse_args(argv)
-    raw = tomllib.loads(Path(args.design).read_text())
+    wanted = [v.strip() for v in args.variants.split(",") if v.strip()]
+    wanted = ["ideal", "glass"] if wanted == ["both"] else wanted
+    if not wanted or set(wanted) - {"ideal", "glass"}:
+        ap.error(f"--variants {args.variants!r}: ideal, glass, ideal,glass or both")
+    try:
+        raw = tomllib.loads(Path(args.design).read_text())
+    except (OSError, tomllib.TOMLDecodeError) as e:
+        ap.error(f"--design {args.design!r}: {e}")
     lenses = tuple(v.strip() for v in args.lenses.split(",") if v.strip())
+    build = {"ideal": lambda: ideal_relay(raw, lenses), "glass": lambda: reglass_relay(raw, args.glass, lenses)}
+    try:
+        variants = {name: build[name]() for name in wanted}
+    except (KeyError, ValueError) as e:
+        ap.error(f"--design {args.design!r}: {e}")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    build = {"ideal": lambda: ideal_relay(raw, lenses), "glass": lambda: reglass_relay(raw, args.glass, lenses)}
-    wanted = [v.strip() for v in args.variants.split(",") if v.strip()]
-    if not wanted or set(wanted) - set(build):
-        ap.error(f"--variants = {args.variants!r}: ideal, glass or both")
-    variants = {name: build[name]() for name in wanted}
     ref = first_order(Path(args.design))
     for name, tab in variants.items():
         p = out / f"{name}.toml"

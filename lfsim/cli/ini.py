@@ -111,8 +111,9 @@ def cmd_analyze(args) -> int:
     if s.get("lateral_colour_wavelengths_nm"):
         lo, hi = s["lateral_colour_wavelengths_nm"]
         print(f"  lateral colour {lo:.1f}-{hi:.1f} nm: max {_num(s['lateral_colour_max_arcmin'], '.3f')}', "
-              f"mean {_num(s['lateral_colour_mean_arcmin'], '.3f')}' (chief rays; every other figure is at "
-              f"{doc['wavelength_nm']:g} nm)")
+              f"mean {_num(s['lateral_colour_mean_arcmin'], '.3f')}' (chief rays; every other figure"
+              + (" but the polychromatic contrast" if s.get("contrast_poly_wavelengths_nm") else "")
+              + f" is at {doc['wavelength_nm']:g} nm)")
     if s.get("contrast_poly_wavelengths_nm"):
         waves = "/".join(f"{v:.1f}" for v in s["contrast_poly_wavelengths_nm"])
         per_depth = " / ".join(_num(b["contrast_nyquist_poly_mean"], ".3f") for b in doc["by_depth"].values())
@@ -214,7 +215,8 @@ def register(sub) -> None:
     an.add_argument("--reference", help="nominal design: GD and PA against its display layout and paraxial rays")
     an.add_argument("--polychromatic", action="store_true",
                     help="also the contrast at Nyquist of the polychromatic MTF (every [system] wavelength, "
-                         "equal weights, one image point: lateral colour lowers it); traces each wavelength")
+                         "equal weights, one image point: lateral colour lowers it); traces each wavelength, "
+                         "about twice the run time")
     an.add_argument("--no-plots", action="store_true")
     _add_set(an)
     an.add_argument("--json", action="store_true")

@@ -198,7 +198,8 @@ def estimate(spec: FocalStackSpec, resolution: tuple[int, int], display_px: int)
     diffracts = spec.diffraction and spec.optics == "analytic"
     nat_pass = npass if spec.eye_model != "ideal" or diffracts else 1
     seconds = (npass * n * samples / rate + ((n * nat_pass + 1) * samples / nat if spec.natural else 0.0)
-               + display_px * spec.ei_samples / (budget.threads() * budget.RATES["elemental_px"])
+               + display_px * spec.ei_samples * (4 if spec.ei_colour else 1)
+               / (budget.threads() * budget.RATES["elemental_px"])
                + (2 * n + 1) * W * H * budget.POST_S_PER_PX)
     images = 2 * n + 1 if spec.natural else n
     nbytes = budget.BASE_BYTES + W * H * budget.BYTES_PER_PX * max(1.0, images / 4) \
@@ -271,7 +272,7 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None, ana
         from .spectra import CHANNELS, DEFAULT_PRIMARIES
 
         prim = content.primaries or DEFAULT_PRIMARIES
-        channel_wavelengths = [float(prim[c].quantiles([0.5])[0]) for c in CHANNELS]
+        channel_wavelengths = [round(float(prim[c].quantiles([0.5])[0]), 3) for c in CHANNELS]
         power = state.tunable_power_diopters
         channel_models = [IniModel(model.design, wavelength_nm=x, precision=model.tracer.precision,
                                    tunable_power_diopters=None if power is None else [power])
