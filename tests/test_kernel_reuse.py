@@ -200,3 +200,20 @@ def test_package_figures_compile_once_for_any_numbers(scenes):
 
     assert _compiled(run) == 0
     assert pb["min_edge_thickness_mm"] != pa["min_edge_thickness_mm"]
+
+
+def test_ini_trace_at_another_wavelength_compiles_nothing(scenes):
+    """Lateral colour, the polychromatic contrast and --ei-colour trace the same design at
+    other wavelengths: the glass indices are data, not constants of the kernels."""
+    design = Design.from_dict(_raw(scenes / "ini_coaxial.toml"), "a.toml")
+    _ini_workload(design)
+    subs = subsystems.sample(IniModel(design), stride=(8, 4), symmetry="none", depths=[0])
+    rho = np.array([[0.0, 0.0], [0.5, 0.0], [0.0, -0.5], [0.3, 0.3]])
+    out = {}
+
+    def run():
+        for lam in (486.1327, 656.2725):
+            out[lam] = subsystems.trace(IniModel(design, wavelength_nm=lam), subs, rho)
+
+    assert _compiled(run) == 0
+    assert not np.allclose(out[486.1327].pos, out[656.2725].pos)  # the glass disperses
