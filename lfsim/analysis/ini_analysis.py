@@ -267,11 +267,7 @@ def lateral_colour(model: IniModel, subs: Subsystems) -> dict | None:
     w = sorted(float(v) for v in model.system.wavelengths_nm)
     if len(w) < 2 or w[0] == w[-1]:
         return None
-    powers = [model.state(k).tunable_power_diopters for k in range(len(model.depths))]
-    powers = None if any(p is None for p in powers) else powers
-    models = [IniModel(model.design, wavelength_nm=x, precision=model.tracer.precision,
-                       tunable_power_diopters=powers) for x in (w[0], w[-1])]
-    short, long_ = trace_many(models, subs, np.zeros((1, 2)))
+    short, long_ = trace_many([model.at_wavelength(x) for x in (w[0], w[-1])], subs, np.zeros((1, 2)))
     D = np.array(model.depths)[subs.k][:, None]
     ends = []
     for b in (short, long_):
@@ -301,19 +297,16 @@ def polychromatic_contrast(res: dict) -> dict | None:
     waves = sorted({float(v) for v in model.system.wavelengths_nm})
     if len(waves) < 2:
         return None
-    powers = [model.state(k).tunable_power_diopters for k in range(len(model.depths))]
-    powers = None if any(p is None for p in powers) else powers
-    others = [x for x in waves if x != float(model.lam)]
-    models = [IniModel(model.design, wavelength_nm=x, precision=model.tracer.precision,
-                       tunable_power_diopters=powers) for x in others]
-    bundles = dict(zip(others, trace_many(models, subs, sets.rho)))
-    models = dict(zip(others, models))
+    others = [model.at_wavelength(x) for x in waves if x != float(model.lam)]
     D = np.array(model.depths)[subs.k]
     nyq = np.array([res["nyquist_cpd"]])
+    # the primary's bundle is already traced; the others in one launch
+    runs = [(m, b, spot.retinal_tan(b.pos, b.slopes(), D[:, None, None]))
+            for m, b in zip(others, trace_many(others, subs, sets.rho))]
+    if len(others) < len(waves):
+        runs.append((model, res["bundle"], res["r"]))
     total = 0.0
-    for x in waves:
-        m, b = (model, res["bundle"]) if x not in models else (models[x], bundles[x])
-        r = res["r"] if b is res["bundle"] else spot.retinal_tan(b.pos, b.slopes(), D[:, None, None])
+    for m, b, r in runs:
         total = total + _diffraction(m, b, sets, r, res["cen"], D, nyq, otf=True)[1][..., 0, :]
     return {"wavelengths_nm": waves, "contrast": np.min(np.abs(total) / len(waves), axis=-1)}
 

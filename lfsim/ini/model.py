@@ -396,6 +396,15 @@ class IniModel:
                             np.array([self.n_ref, self.n_ref, self.n_ref + 1]))
         return np.array([a[1, 0] - a[0, 0], a[2, 1] - a[0, 1]])
 
+    def at_wavelength(self, wavelength_nm: float) -> IniModel:
+        """The same design traced at ``wavelength_nm``, the tunable lens held at this model's
+        powers (an ideal lens: no colour of its own), so that the two differ by the glasses'
+        dispersion only (lateral colour, the polychromatic contrast, per-channel elemental
+        images)."""
+        powers = [self.state(k).tunable_power_diopters for k in range(len(self.depths))]
+        return IniModel(self.design, wavelength_nm=wavelength_nm, precision=self.tracer.precision,
+                        tunable_power_diopters=None if any(p is None for p in powers) else powers)
+
     # -------------------------------------------------------------- summary
     def state(self, k: int) -> DepthState:
         """First-order data (Eqs. 2–10, generalized) of CDP state k."""

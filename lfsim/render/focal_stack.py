@@ -268,15 +268,11 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None, ana
         if passes[0].channel is None:
             raise ValueError("ei_colour: per-channel elemental images need a spectral render (no wavelength_nm, "
                              "analytic optics)")
-        from ..ini.model import IniModel
         from .spectra import CHANNELS, DEFAULT_PRIMARIES
 
         prim = content.primaries or DEFAULT_PRIMARIES
         channel_wavelengths = [round(float(prim[c].quantiles([0.5])[0]), 3) for c in CHANNELS]
-        power = state.tunable_power_diopters
-        channel_models = [IniModel(model.design, wavelength_nm=x, precision=model.tracer.precision,
-                                   tunable_power_diopters=None if power is None else [power])
-                          for x in channel_wavelengths]
+        channel_models = [model.at_wavelength(x) for x in channel_wavelengths]
     bar = None
     if progress:
         from ..progress import bar as tqdm
