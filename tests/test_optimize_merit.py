@@ -390,3 +390,44 @@ def test_colour_block_jacobian_and_figure(scenes, tmp_path):
         assert scale > 0, M.cols[j].label
         err = np.abs(fd - J[blk, j])[keep].max()
         assert err <= 2e-5 * scale + 1e-7, (M.cols[j].label, err, scale)
+
+
+def test_edge_thickness_block_jacobian_with_decentred_and_tilted_lenses(scenes, tmp_path):
+    """A relay lens whose decenter and tilt are variables (A1's faces, with its bending; the limit
+    1 mm above its edge) gives a row per rim point (the least over the rim has a kink where
+    the thinnest point moves), its rows the rim's shortfall in µm; every row against central
+    differences of the exact residuals, off the axis and at the coaxial start."""
+    from lfsim.optics.solids import EDGE_RIM_POINTS, edge_thickness, glass_pairs, rim_thickness
+
+    variables = ["A1a.decenter_y", "A1b.decenter_y", "A1b.tilt_x", "A1a.curvature"]
+    d0 = _design(scenes, tmp_path, variables)
+    M0 = IniMerit(d0, d0.optimize)
+    m = M0.model_at(M0.x0)
+    pairs = glass_pairs(m.system, m.tracer.names, m.values0, m.spec.viewing_window)
+    q = [m.system.surfaces[i].name for i, _, _ in pairs].index("A1a")
+    i, j, rad = pairs[q]
+    e0 = edge_thickness(m.tracer, m.values0, i, j, rad)
+    d = _design(scenes, tmp_path, variables, targets={"min_edge_thickness": e0 + 1.0})
+    M = IniMerit(d, d.optimize)
+    w = 1000.0 * d.optimize.weights.thickness
+    for off_axis in (True, False):
+        x0 = M.x0.copy()
+        if off_axis:
+            x0[:3] = [0.4, -0.3, 1.5]  # a decentred, wedged element
+        r, J, _ = M.evaluate(x0, dense=True)
+        lay = [n for n, _ in M.layout]
+        a = sum(n for _, n in M.layout[:lay.index("edge_thickness")])
+        blk = slice(a, a + dict(M.layout)["edge_thickness"])
+        assert dict(M.layout)["edge_thickness"] == len(pairs) - 1 + EDGE_RIM_POINTS
+        rim = rim_thickness(m.tracer, M.model_at(x0).values0, i, j, rad)[0]
+        np.testing.assert_allclose(r[blk][q:q + EDGE_RIM_POINTS], np.maximum(e0 + 1.0 - rim, 0.0) * w, rtol=1e-12)
+        if not off_axis:  # coaxial: every rim point as thin as the coaxial formula
+            np.testing.assert_allclose(rim, e0, rtol=0, atol=1e-12)
+        for k in range(len(x0)):
+            h = 1e-6 * max(1.0, abs(x0[k]))
+            xp, xm = x0.copy(), x0.copy()
+            xp[k] += h
+            xm[k] -= h
+            fd = (_dense(M, xp)[blk] - _dense(M, xm)[blk]) / (2 * h)
+            assert np.abs(fd).max() > 0, M.cols[k].label
+            np.testing.assert_allclose(J[blk, k], fd, rtol=0, atol=1e-4 * np.abs(fd).max(), err_msg=M.cols[k].label)

@@ -213,6 +213,65 @@ def test_figures_follow_the_model_values():
     assert r["min_edge_thickness_mm"] == pytest.approx(2.0 - sphere_sag(50.0, 10.0), abs=1e-12)
 
 
+@pytest.mark.parametrize("d", [0.8, -0.9])
+def test_decentred_lens_edge_and_clear_diameter(d):
+    """W (R = ±100, 3 mm, semi-diameter 12) decentred as a whole by d in y: its blank about the
+    relay axis must hold the moved apertures, radius 12 + |d| (clear diameter 2(12 + |d|)), and
+    its thinnest rim point lies 12 + 2|d| from the lens's own axis: 3 − 2 sag(12 + 2|d|) (or M's
+    edge, 2 − sag_60(10), where that is thinner)."""
+    model = IniModel(_design(_small(None)))
+    v = model.values0.copy()
+    for name in ("W1", "W2"):
+        v[model.tracer.index[f"{name}.decenter_y"]] = d
+    p = package(IniModel(model.design, values=v))
+    r = 12.0 + 2.0 * abs(d)
+    e_w = 3.0 - sphere_sag(100.0, r) + sphere_sag(-100.0, r)
+    assert p["min_edge_thickness_mm"] == pytest.approx(min(e_w, 2.0 - sphere_sag(60.0, 10.0)), abs=1e-10)
+    assert p["clear_diameters_mm"]["W1"] == pytest.approx(2.0 * (12.0 + abs(d)), abs=1e-12)
+    assert p["clear_diameters_mm"]["W2"] == pytest.approx(2.0 * (12.0 + abs(d)), abs=1e-12)
+    assert p["clear_diameters_mm"]["M1"] == 20.0
+
+
+@pytest.mark.parametrize("tilt", [2.0, -3.0])
+def test_wedged_lens_edge(tilt):
+    """W's front face made flat and tilted about its vertex (a wedge): along the axis the flat face
+    lies y·tan θ from its vertex plane, so the thinnest rim point (semi-diameter 12) is
+    3 + sag_W2(12) − 12 tan|θ|. The back face alone decentred by 0.5 (a wedge again): the rim
+    about the relay axis is 12.5, 13 from the back face's axis at its thinnest."""
+    from lfsim.optics.solids import edge_thickness, glass_pairs
+
+    model = IniModel(_design(_small(None)))
+    tr, ix = model.tracer, model.tracer.index
+    i, j, rad = glass_pairs(model.system, tr.names, model.values0, model.spec.viewing_window)[0]
+    assert (model.system.surfaces[i].name, model.system.surfaces[j].name, rad) == ("W1", "W2", 12.0)
+    v = model.values0.copy()
+    v[ix["W1.curvature"]] = 0.0
+    v[ix["W1.tilt_x"]] = tilt
+    e = 3.0 + sphere_sag(-100.0, 12.0) - 12.0 * math.tan(math.radians(abs(tilt)))
+    assert edge_thickness(tr, v, i, j, rad) == pytest.approx(e, abs=1e-10)
+    w = model.values0.copy()
+    w[ix["W1.curvature"]] = 0.0
+    w[ix["W2.decenter_y"]] = 0.5
+    assert edge_thickness(tr, w, i, j, rad) == pytest.approx(3.0 + sphere_sag(-100.0, 13.0), abs=1e-10)
+
+
+def test_edge_thickness_batches_parameter_vectors():
+    """(B, n) parameter vectors give the B edge thicknesses of one launch, each as alone."""
+    from lfsim.optics.solids import edge_thickness, glass_pairs
+
+    model = IniModel(_design(_small(None)))
+    tr = model.tracer
+    i, j, rad = glass_pairs(model.system, tr.names, model.values0, model.spec.viewing_window)[0]
+    V = np.repeat(model.values0[None], 3, axis=0)
+    V[1, tr.index["W1.decenter_y"]] = 0.3
+    V[2, tr.index["W2.tilt_x"]] = 1.0
+    batch = edge_thickness(tr, V, i, j, rad)
+    assert batch.shape == (3,)
+    for b in range(3):
+        assert batch[b] == pytest.approx(edge_thickness(tr, V[b], i, j, rad), abs=1e-12)
+    assert len(set(np.round(batch, 9))) == 3
+
+
 # ------------------------------------------------------------ against the tracer's path
 @pytest.mark.parametrize("name", ["ini_freeform", "ini_coaxial"])
 def test_against_the_tracers_recorded_path(name):

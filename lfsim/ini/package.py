@@ -82,9 +82,15 @@ def _min_finite(values) -> float | None:
     return min(v) if v else None
 
 
-def _declared_diameter(ap) -> float:
-    """2 × a clear aperture's radius (a rectangle: its diagonal, the circle about it)."""
-    return 2.0 * (ap.radius if ap.kind == "circular" else math.hypot(*ap.half_width))
+def _declared_diameter(ap, shift=(0.0, 0.0)) -> float:
+    """Diameter of the circle about the axis that holds a clear aperture: 2 × its radius
+    (a rectangle: its half-diagonal) plus its centre's offset from the axis (the
+    aperture's own decenter plus ``shift``, the surface's decenter)."""
+    off = math.hypot(ap.decenter[0] + shift[0], ap.decenter[1] + shift[1])
+    if ap.kind == "circular":
+        return 2.0 * (ap.radius + off)
+    dx, dy = abs(ap.decenter[0] + shift[0]), abs(ap.decenter[1] + shift[1])
+    return 2.0 * math.hypot(ap.half_width[0] + dx, ap.half_width[1] + dy)
 
 
 def _outline(kind: str, size, decenter=(0.0, 0.0)) -> np.ndarray:
@@ -236,7 +242,9 @@ def package(model: IniModel) -> dict:
     clear = {}
     for i in relay:
         ap = surf[i].aperture
-        clear[surf[i].name] = _f(_declared_diameter(ap) if ap is not None else 2.0 * radial(i))
+        shift = (values[tr.index[f"{surf[i].name}.decenter_x"]], values[tr.index[f"{surf[i].name}.decenter_y"]])
+        clear[surf[i].name] = _f(_declared_diameter(ap, shift) if ap is not None
+                                 else 2.0 * (radial(i) + math.hypot(*shift)))
     diam = [v for v in clear.values() if v is not None]
 
     # --------------------------------------------------------- tunable lens

@@ -264,18 +264,127 @@ def glass_pairs(system, names, values, last: int) -> list[tuple[int, int, float]
     return out
 
 
-def edge_thickness(tracer, values, i: int, j: int, radius: float) -> float:
-    """Axial glass thickness between surfaces i and j at ``radius`` (sags from the
-    tracer's surface model with parameters ``values``); −inf where a sag is undefined.
-    ``radius`` enters the kernel as an opaque value, so every radius shares one kernel."""
+#: Points on a glass element's rim at which its edge thickness is measured.
+EDGE_RIM_POINTS = 64
+
+
+def _rotation_xyz(ax: np.ndarray, ay: np.ndarray, az: np.ndarray) -> np.ndarray:
+    """(B, 3, 3) R = Rx(ax)·Ry(ay)·Rz(az) (radians; the tracer's tilt order)."""
+    def rot(a, i, j):
+        c, s = np.cos(a), np.sin(a)
+        R = np.broadcast_to(np.eye(3), (len(a), 3, 3)).copy()
+        R[:, i, i], R[:, j, j], R[:, i, j], R[:, j, i] = c, c, -s, s
+        return R
+    return rot(ax, 1, 2) @ rot(ay, 2, 0) @ rot(az, 0, 1)
+
+
+def _coaxial_element(system, V: np.ndarray, col, i: int, j: int) -> bool:
+    """Whether surfaces i and j sit untilted and undecentred on one axis in every row of V."""
+    for s in (system.surfaces[i], system.surfaces[j]):
+        if s.aperture is not None and any(s.aperture.decenter):
+            return False
+        if any(np.any(col(f"{s.name}.{k}") != 0.0) for k in ("decenter_x", "decenter_y", "tilt_x", "tilt_y", "tilt_z")):
+            return False
+    return True
+
+
+def rim_thickness(tracer, values, i: int, j: int, radius: float, points: int = EDGE_RIM_POINTS) -> np.ndarray:
+    """Glass thickness (B, points) at ``points`` equally spaced points of the rim of the
+    element between surfaces i and j, for B parameter vectors ``values`` (B, n_params)
+    or (n_params,), in one launch.
+
+    The rim is the circle about the element's axis (surface i's frame before its
+    own decenter and tilt, to which both surfaces return) that holds both
+    surfaces' circular clear apertures where they sit: radius ``max(r_k +
+    |d_k|)`` over the surfaces' clear radii r_k and the offsets d_k of their
+    aperture centres from the axis (surface decenter plus aperture decenter),
+    ``radius`` where neither aperture is circular. The thickness at a rim point
+    is the distance between the two surfaces along the line through it parallel
+    to the axis: the tracer's own intersection with each surface in its frame,
+    so that tilted and decentred surfaces (a lens decentred or tilted as a whole,
+    or wedged) are measured as they are built. −inf where the line misses a
+    surface.
+    """
+    T, names, system = tracer.T, tracer.names, tracer.system
+    V = np.atleast_2d(np.asarray(values, dtype=np.float64))
+    B = len(V)
+
+    def col(name):
+        return V[:, names.index(name)]
+
+    a = system.surfaces[i]
+    rim = np.zeros(B)
+    for s in (a, system.surfaces[j]):
+        ap = s.aperture
+        if ap is not None and ap.kind == "circular":
+            dx = col(f"{s.name}.decenter_x") + ap.decenter[0]
+            dy = col(f"{s.name}.decenter_y") + ap.decenter[1]
+            rim = np.maximum(rim, ap.radius + np.hypot(dx, dy))
+    rim = np.where(rim > 0.0, rim, radius)
+
+    phi = np.linspace(0.0, 2.0 * math.pi, points, endpoint=False)
+    with dr.suspend_grad():
+        packed = tracer.params(values=V.ravel())
+        Rs, os_ = tracer.frames(packed)
+        R = [np.stack([np.stack([np.asarray(Rs[k][p][q], dtype=np.float64) for q in range(3)], -1)
+                       for p in range(3)], -2) for k in (i, j)]  # (B, 3, 3)
+        o = [np.stack([np.asarray(os_[k][p], dtype=np.float64) for p in range(3)], -1) for k in (i, j)]  # (B, 3)
+        deg = math.pi / 180.0
+        tilt = _rotation_xyz(*(col(f"{a.name}.tilt_{ax}") * deg for ax in "xyz"))
+        R_ax = R[0] @ np.swapaxes(tilt, 1, 2)  # the frame surface i was placed from
+        shift = np.stack([col(f"{a.name}.decenter_x"), col(f"{a.name}.decenter_y"), np.zeros(B)], -1)
+        o_ax = o[0] - np.einsum("bij,bj->bi", R_ax, shift)
+        local = np.stack([np.cos(phi), np.sin(phi), np.zeros_like(phi)], -1)[None] * rim[:, None, None]
+        P = np.einsum("bij,bqj->bqi", R_ax, local) + o_ax[:, None]  # (B, Q, 3) rim points, global
+        D = np.broadcast_to(R_ax[:, :, 2][:, None], P.shape)  # the axis
+        block = backend.from_numpy(T.UInt32, np.repeat(np.arange(B, dtype=np.uint32), points))
+        t = []
+        for k, Rk, ok_ in ((i, R[0], o[0]), (j, R[1], o[1])):
+            pl = np.einsum("bji,bqj->bqi", Rk, P - ok_[:, None])  # R^T (P − o)
+            dl = np.einsum("bji,bqj->bqi", Rk, D)
+            pa = T.Array3(*backend.from_numpy(T.Float, *(pl[..., c].ravel() for c in range(3))))
+            da = T.Array3(*backend.from_numpy(T.Float, *(dl[..., c].ravel() for c in range(3))))
+            tk, hit, conv = intersect(pa, da, tracer.shape(packed, k, block), T, True,
+                                      tracer.newton_tol, tracer.newton_max_iter)
+            dr.eval(tk, hit, conv)
+            tk = np.asarray(tk, dtype=np.float64).reshape(B, points)
+            t.append(np.where(np.asarray(hit & conv).reshape(B, points), tk, np.nan))
+    e = t[1] - t[0]
+    return np.where(np.isfinite(e), e, -math.inf)
+
+
+def edge_thickness(tracer, values, i: int, j: int, radius: float, points: int = EDGE_RIM_POINTS):
+    """Least glass thickness on the rim of the element between surfaces i and j
+    (:func:`rim_thickness`). On a coaxial element (no decenter or tilt on either
+    surface) that is ``d + z_j(r) − z_i(r)`` at ``radius``, evaluated so from the sags.
+    −inf where a sag or an intersection is undefined.
+
+    ``values`` (n_params,) gives a float; (B, n_params) gives (B,) (e.g. the central
+    differences of a Jacobian; off the axis in one launch).
+    """
     T, names = tracer.T, tracer.names
-    P, block = tracer.params(values=values), dr.zeros(T.UInt32, 1)
+    V = np.asarray(values, dtype=np.float64)
+    single = V.ndim == 1
+    V = np.atleast_2d(V)
 
-    def z(k):
-        with dr.suspend_grad():
-            zz, _, _, inside = sag(dr.opaque(T.Float, radius), T.Float(0.0), tracer.shape(P, k, block))
-        return float(zz[0]) if bool(inside[0]) else math.nan
+    def col(name):
+        return V[:, names.index(name)]
 
-    thick = float(values[names.index(f"{tracer.system.surfaces[i].name}.thickness")])
-    e = thick - z(i) + z(j)
-    return e if math.isfinite(e) else -math.inf
+    if not _coaxial_element(tracer.system, V, col, i, j):
+        e = np.min(rim_thickness(tracer, V, i, j, radius, points), axis=1)
+        return float(e[0]) if single else e
+
+    block = dr.zeros(T.UInt32, 1)
+    out = []
+    for v in V:
+        P = tracer.params(values=v)
+
+        def z(k):
+            with dr.suspend_grad():
+                zz, _, _, inside = sag(dr.opaque(T.Float, radius), T.Float(0.0), tracer.shape(P, k, block))
+            return float(zz[0]) if bool(inside[0]) else math.nan
+
+        thick = float(v[names.index(f"{tracer.system.surfaces[i].name}.thickness")])
+        e = thick - z(i) + z(j)
+        out.append(e if math.isfinite(e) else -math.inf)
+    return out[0] if single else np.array(out)

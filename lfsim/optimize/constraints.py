@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..optics.solids import edge_thickness, glass_pairs, is_glass
+from ..optics.solids import edge_thickness, glass_pairs, is_glass, rim_thickness
 
 __all__ = ["center_thickness", "edge_thickness", "edge_thickness_block", "glass_pairs", "is_glass"]
 
@@ -36,29 +36,46 @@ def center_thickness(cols, x, system, names, values, targets, weights, K: int, d
         yield "thickness", np.array(res_t), np.array(jac_t) if derivatives else None
 
 
+_OFF_AXIS = ("decenter_x", "decenter_y", "tilt_x", "tilt_y", "tilt_z")
+
+
 def edge_thickness_block(cols, x, tracer, values, pairs, targets, weights, K: int, derivatives: bool):
-    """Edge thickness of the glass elements ``pairs`` below ``min_edge_thickness``,
-    µm; derivatives by central differences of the sags."""
+    """Edge thickness of the glass elements ``pairs`` below ``min_edge_thickness``, µm;
+    derivatives by central differences (one launch per element).
+
+    An element whose own decenter or tilt is a variable gives a row per rim point
+    (:func:`~lfsim.optics.solids.rim_thickness`): the least thickness over the rim
+    has a kink wherever the thinnest point moves (at a coaxial start every rim point
+    is thinnest at once), and a least-squares step cannot see it; each point's
+    hinge is smooth. Every other element gives one row, its least rim thickness."""
     if targets.min_edge_thickness is None or not pairs:
         return
     system, names = tracer.system, tracer.names
-    et = np.array([edge_thickness(tracer, values, i, j, rad) for i, j, rad in pairs])
-    over = et < targets.min_edge_thickness
-    jac = None
-    if derivatives:
-        jac = np.zeros((len(pairs), K))
-        for q, (i, j, rad) in enumerate(pairs):
-            if not over[q]:
-                continue
-            own = {system.surfaces[i].name, system.surfaces[j].name}
-            for c_, col in enumerate(cols):
-                if col.state is not None or col.name.split(".")[0] not in own:
-                    continue
-                h = 1e-7 * max(1.0, abs(x[c_]))
-                vp, vm = values.copy(), values.copy()
-                vp[names.index(col.name)] += h
-                vm[names.index(col.name)] -= h
-                jac[q, c_] = -(edge_thickness(tracer, vp, i, j, rad) - edge_thickness(tracer, vm, i, j, rad)) / (2 * h)
-        jac *= 1000.0 * weights.thickness
-    yield ("edge_thickness", np.where(over, targets.min_edge_thickness - et, 0.0) * 1000.0 * weights.thickness,
-           jac)
+    lim, scale = targets.min_edge_thickness, 1000.0 * weights.thickness
+    res, rows = [], []
+    for i, j, rad in pairs:
+        own = {system.surfaces[i].name, system.surfaces[j].name}
+        use = [c_ for c_, col in enumerate(cols) if col.state is None and col.name.split(".")[0] in own]
+        per_point = any(cols[c_].name.split(".")[-1] in _OFF_AXIS for c_ in use)
+
+        def thickness(V, i=i, j=j, rad=rad, per_point=per_point):  # (B, rows of this element)
+            if per_point:
+                return rim_thickness(tracer, V, i, j, rad)
+            return np.atleast_1d(edge_thickness(tracer, V, i, j, rad)).reshape(-1, 1)
+
+        et = thickness(values[None])[0]
+        over = et < lim
+        res.append(np.where(over, lim - et, 0.0) * 1000.0 * weights.thickness)  # as scale, rounded as ever
+        jac = np.zeros((et.size, K)) if derivatives else None
+        if derivatives and over.any() and use:
+            hs = np.array([1e-7 * max(1.0, abs(x[c_])) for c_ in use])
+            V = np.repeat(values[None], 2 * len(use), axis=0)
+            for k, (c_, h) in enumerate(zip(use, hs)):
+                V[2 * k, names.index(cols[c_].name)] += h
+                V[2 * k + 1, names.index(cols[c_].name)] -= h
+            e = thickness(V)  # one launch for every ± step
+            d = (e[0::2] - e[1::2]) / (2 * hs[:, None])  # (len(use), rows)
+            with np.errstate(invalid="ignore"):  # a rim point whose line misses at x ± h: no slope
+                jac[:, use] = np.where(over[:, None] & np.isfinite(d.T), -d.T, 0.0) * scale
+        rows.append(jac)
+    yield ("edge_thickness", np.concatenate(res), np.concatenate(rows) if derivatives else None)
