@@ -73,7 +73,7 @@ from pathlib import Path
 
 import numpy as np
 import tomli_w
-from relay_variants import LENSES, _curvature, _shift_after_relay  # examples/, beside this script
+from relay_variants import LENSES, _curvature, _shift_after_relay, off_axis  # examples/, beside this script
 from scipy.optimize import minimize
 
 from lfsim.cli import OneLineParser
@@ -134,6 +134,8 @@ def read_relay(raw: dict, lam: float, powers=None):
     idx = [names.index(x) for x in LENSES]
     if not (ia < idx[0] < idx[1] < it < idx[2] < idx[3]):
         raise ValueError("expected AA, two singlets, the tunable lens, two singlets in that order")
+    for i in idx:
+        off_axis(S[i], S[i + 1])
     c1 = np.array([_curvature(S[i]) for i in idx])
     c2 = np.array([_curvature(S[i + 1]) for i in idx])
     t = np.array([float(S[i]["thickness"]) for i in idx])
@@ -506,8 +508,8 @@ def search(S: Search, glasses, lam: float, starts: int, seed: int, warm=()):
 
 def main(argv=None) -> int:
     ap = OneLineParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--design", default=str(ROOT / "scenes" / "ini_wearable_optimized.toml"),
-                    help="an InI design with AA, two singlets, the tunable lens, two singlets "
+    ap.add_argument("--design", default=str(ROOT / "scenes" / "ini_wearable.toml"),
+                    help="an InI design with AA, two coaxial singlets, the tunable lens, two coaxial singlets "
                          "(default: %(default)s)")
     ap.add_argument("--out", required=True, help="folder for relay_petzval.json / .png and the written designs")
     ap.add_argument("--track-limits", default="150,175,200",

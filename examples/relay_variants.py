@@ -1,6 +1,6 @@
 """Relay variants of the same first order: what a design's relay lenses cost.
 
-Two variants of an InI design (by default ``scenes/ini_wearable_optimized.toml``)
+Two variants of an InI design with a coaxial relay (by default ``scenes/ini_wearable.toml``)
 whose lenses (named by their front surfaces, ``R1a`` ...) are swapped for
 something else with *exactly* the same paraxial matrix, so the first-order
 model (CDP, EI pitch, pixel, FOV, tunable-lens powers) is unchanged and only the
@@ -55,7 +55,19 @@ def _singlets(raw: dict, lenses):
         i = names.index(name)
         if i + 1 >= len(S) or str(S[i].get("material", "air")).lower() == "air":
             raise ValueError(f"{name!r} is not the front face of a glass singlet")
+        off_axis(S[i], S[i + 1])
         yield i, S[i], S[i + 1]
+
+
+def off_axis(*faces: dict) -> None:
+    """Refuse a decentred or tilted face: these variants (and the paraxial relay search)
+    hold a lens's matrix about one axis."""
+    for f in faces:
+        for key in ("decenter", "tilt"):
+            v = f.get(key)
+            if v is not None and any(float(x) != 0.0 for x in v):
+                raise ValueError(f"surface {f.get('name')!r} {key} = {list(v)}: the relay must be coaxial "
+                                 f"(a lens's paraxial matrix about one axis)")
 
 
 def _shift_after_relay(raw: dict, dz: float) -> None:
@@ -149,7 +161,8 @@ def first_order(path: Path) -> list[dict]:
 
 def main(argv=None) -> int:
     ap = OneLineParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--design", default=str(ROOT / "scenes" / "ini_wearable_optimized.toml"))
+    ap.add_argument("--design", default=str(ROOT / "scenes" / "ini_wearable.toml"),
+                    help="an InI design whose relay singlets are coaxial (default: %(default)s)")
     ap.add_argument("--lenses", default=",".join(LENSES), help="front faces of the relay singlets")
     ap.add_argument("--glass", default="N-LASF31A", help="the glass of the 'glass' variant")
     ap.add_argument("--out", required=True, help="folder for ideal.toml, glass.toml and their runs")

@@ -42,6 +42,14 @@ def _dense(M, x):
     return M.evaluate(x, derivatives=False, dense=True)[0]
 
 
+def _central(M, x0, j: int, h: float, rows) -> np.ndarray:
+    """Central difference of the dense residuals ``rows`` in column j, step h."""
+    xp, xm = x0.copy(), x0.copy()
+    xp[j] += h
+    xm[j] -= h
+    return (_dense(M, xp)[rows] - _dense(M, xm)[rows]) / (2 * h)
+
+
 def test_merit_jacobian_matches_central_differences(freeform_merit):
     """Every residual block (spot, spot per axis, GD, PA, distortion, crosstalk, TIR,
     apertures, EFL, thickness) against
@@ -338,11 +346,7 @@ def test_package_block_jacobian_matches_central_differences(scenes, tmp_path):
     np.testing.assert_allclose(res[8:10], 1.0, atol=1e-9)
     moved = 0
     for j in range(len(x0)):
-        h = 1e-5 * max(1.0, abs(x0[j]))
-        xp, xm = x0.copy(), x0.copy()
-        xp[j] += h
-        xm[j] -= h
-        fd = (_dense(M, xp)[blk] - _dense(M, xm)[blk]) / (2 * h)
+        fd = _central(M, x0, j, 1e-5 * max(1.0, abs(x0[j])), blk)
         scale = np.abs(fd).max()
         if M.cols[j].name == "S3.x2y0":  # not a geometric column: left out of the block's derivatives
             assert np.all(J[blk, j] == 0.0)
@@ -424,10 +428,6 @@ def test_edge_thickness_block_jacobian_with_decentred_and_tilted_lenses(scenes, 
         if not off_axis:  # coaxial: every rim point as thin as the coaxial formula
             np.testing.assert_allclose(rim, e0, rtol=0, atol=1e-12)
         for k in range(len(x0)):
-            h = 1e-6 * max(1.0, abs(x0[k]))
-            xp, xm = x0.copy(), x0.copy()
-            xp[k] += h
-            xm[k] -= h
-            fd = (_dense(M, xp)[blk] - _dense(M, xm)[blk]) / (2 * h)
+            fd = _central(M, x0, k, 1e-6 * max(1.0, abs(x0[k])), blk)
             assert np.abs(fd).max() > 0, M.cols[k].label
             np.testing.assert_allclose(J[blk, k], fd, rtol=0, atol=1e-4 * np.abs(fd).max(), err_msg=M.cols[k].label)

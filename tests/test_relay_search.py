@@ -73,8 +73,13 @@ def test_chromatic_sums_of_a_thin_lens_match_welford(yb):
 
 
 def test_the_design_relay_obeys_the_rules_and_a_found_relay_keeps_the_first_order(tmp_path):
-    path = ROOT / "scenes" / "ini_wearable_optimized.toml"
-    raw = tomllib.loads(path.read_text())
+    # the shipped design's relay set back on its axis (its lenses are decentred; the search is coaxial)
+    raw = tomllib.loads((ROOT / "scenes" / "ini_wearable_optimized.toml").read_text())
+    for s_ in raw["surfaces"]:
+        if s_.get("name", "").startswith("R") and s_["name"][:2] in ("R1", "R2", "R3", "R4"):
+            s_.pop("decenter", None)
+    path = tmp_path / "coaxial.toml"
+    path.write_text(tomli_w.dumps(raw))
     lam = raw["system"]["primary_wavelength_nm"]
     ref, phis = rp.read_relay(raw, lam)
     rays, marginal = rp.bundle(path)
@@ -128,9 +133,27 @@ def test_the_design_relay_obeys_the_rules_and_a_found_relay_keeps_the_first_orde
         for k in KEYS[1:]:
             assert np.allclose(np.atleast_1d(b[k]), np.atleast_1d(a[k]), rtol=0, atol=1e-6), (k, a[k], b[k])
     # the tunable power at the 1 D state is one of the search's variables (the relay's matrix, not
-    # that power, is held): the powers of the states keep their differences, the CDP map
+    # that power, is held): the powers of the states keep their differences, the CDP map, to a
+    # few µD of the 2-5 D steps (SLSQP holds the relay's matrix to 1e-7, scaled)
     pa_, pb_ = ([f["tunable_power_diopters"] for f in fo] for fo in (fa, fb))
-    assert np.allclose(np.diff(pb_), np.diff(pa_), rtol=0, atol=1e-6), (pa_, pb_)
+    assert np.allclose(np.diff(pb_), np.diff(pa_), rtol=0, atol=5e-6), (pa_, pb_)
+
+
+def test_a_decentred_relay_is_refused_in_one_line(tmp_path, capsys):
+    """The search and the variants hold each lens's matrix about one axis: a design whose relay
+    lens is decentred (the shipped wearable's) is refused, naming the surface and the value."""
+    import relay_variants as rv
+
+    out = tmp_path / "out"
+    shipped = str(ROOT / "scenes" / "ini_wearable_optimized.toml")
+    assert rp.main(["--design", shipped, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "decenter" in err and "coaxial" in err and "ini_wearable_optimized" in err, err
+    with pytest.raises(SystemExit) as e:
+        rv.main(["--design", shipped, "--out", str(out)])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and err.count("\n") == 1 and "decenter" in err and "coaxial" in err, err
+    assert not out.exists()
 
 
 @pytest.mark.parametrize("argv, said", [
