@@ -531,6 +531,8 @@ def main(argv=None) -> int:
         ap.error(f"--starts {args.starts}: at least 1")
     if not args.colour_max > 0:
         ap.error(f"--colour-max {args.colour_max}: a positive number or inf")
+    if not (args.clear_diameter > 0 and math.isfinite(args.clear_diameter)):
+        ap.error(f"--clear-diameter {args.clear_diameter}: a positive number of mm")
     try:
         limits = [math.inf if v.strip().lower() == "none" else float(v) for v in args.track_limits.split(",")]
     except ValueError:
@@ -563,6 +565,10 @@ def main(argv=None) -> int:
         msg = str(e) if str(e).startswith(str(path)) else f"{path}: {e}"
         print(f"relay_petzval.py: error: {msg}", file=sys.stderr)
         return 2
+    short = [lim for lim in limits if not ref.length + (lim - track) > 0]
+    if short:
+        ap.error(f"--track-limits {args.track_limits!r}: {short[0]:g} mm leaves the relay no length (the rest "
+                 f"of {path.name} takes {track - ref.length:.2f} mm of its {track:.2f} mm track)")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rows, best = [], {}

@@ -161,6 +161,8 @@ def test_a_decentred_relay_is_refused_in_one_line(tmp_path, capsys):
     (["--glasses", "N-LAK22,N-LAK22"], "--glasses 'N-LAK22,N-LAK22': four glasses, one per singlet"),
     (["--colour-max", "-1"], "--colour-max -1.0: a positive number or inf"),
     (["--track-limits", "150,abc"], "--track-limits '150,abc': numbers in mm"),
+    (["--clear-diameter", "0"], "--clear-diameter 0.0: a positive number of mm"),
+    (["--track-limits", "150,20"], "20 mm leaves the relay no length"),
 ])
 def test_bad_arguments_give_one_line_and_write_nothing(tmp_path, capsys, argv, said):
     out = tmp_path / "out"
