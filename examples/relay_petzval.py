@@ -518,7 +518,7 @@ def main(argv=None) -> int:
                     help="four glasses, comma separated, one assignment per flag (default: all N-LAK22, and "
                          "all N-LASF31A)")
     ap.add_argument("--clear-diameter", type=float, default=23.2,
-                    help="largest clear diameter (mm; default: %(default)s, 25.4 mm parts)")
+                    help="largest clear diameter of a lens, mm (default: %(default)s, on 25.4 mm parts)")
     ap.add_argument("--starts", type=int, default=10,
                     help="SLSQP runs per limit and glasses besides the warm start (default: %(default)s)")
     ap.add_argument("--colour-max", type=float, default=1.0,
@@ -587,7 +587,8 @@ def main(argv=None) -> int:
                "warm_started": bool(warm)}
         if found is None:
             row.update(field_curvature=None, feasible_runs=0)
-            print(f"track <= {lim:g} mm, {','.join(glasses)}: no feasible relay in {args.starts + len(warm)} runs")
+            print(f"track <= {lim:g} mm, {','.join(glasses)}: no feasible relay in "
+                  f"{args.starts + len(warm)} SLSQP run(s)")
         else:
             x, fc, nf, origin = found
             fc, nf = float(fc), int(nf)
@@ -648,7 +649,7 @@ def _plot(doc: dict, path: Path) -> None:
     ax.plot([ref["track_mm"]], [ref["field_curvature"]], "ks", label="the design's relay")
     ax.axhline(0.0, color="0.6", lw=0.8)
     ax.set_xlabel("track limit (mm)")
-    ax.set_ylabel("relay field curvature (shipped S_IV² = 1)")
+    ax.set_ylabel("relay field curvature (the design's S_IV² = 1)")
     ax.set_title("Least field curvature of four singlets at the same first order", fontsize=9)
     ax.legend(fontsize=7)
     fig.tight_layout()

@@ -174,16 +174,30 @@ def main(argv=None) -> int:
     wanted = ["ideal", "glass"] if wanted == ["both"] else wanted
     if not wanted or set(wanted) - {"ideal", "glass"}:
         ap.error(f"--variants {args.variants!r}: ideal, glass, ideal,glass or both")
+    import lfsim
+
     try:
         raw = tomllib.loads(Path(args.design).read_text())
-    except (OSError, tomllib.TOMLDecodeError) as e:
+        lfsim.load(args.design)  # the schema's one-line errors, before anything is written
+    except (OSError, tomllib.TOMLDecodeError, ValueError) as e:
         ap.error(f"--design {args.design!r}: {e}")
+    if "glass" in wanted:
+        try:
+            lookup(args.glass)
+        except (KeyError, ValueError) as e:
+            ap.error(f"--glass {args.glass!r}: {e}")
+    if args.optimize:
+        known = [st.get("name") for st in raw.get("optimize", {}).get("stages", [])]
+        bad = [v for v in args.optimize.split(",") if v.strip() not in known]
+        if bad:
+            ap.error(f"--optimize {args.optimize!r}: {bad[0].strip()!r} is not a stage of {Path(args.design).name} "
+                     f"({', '.join(map(str, known)) or 'it has none'})")
     lenses = tuple(v.strip() for v in args.lenses.split(",") if v.strip())
     build = {"ideal": lambda: ideal_relay(raw, lenses), "glass": lambda: reglass_relay(raw, args.glass, lenses)}
     try:
         variants = {name: build[name]() for name in wanted}
     except (KeyError, ValueError) as e:
-        ap.error(f"--design {args.design!r}: {e}")
+        ap.error(f"--lenses {args.lenses!r} in {args.design!r}: {e}")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     ref = first_order(Path(args.design))

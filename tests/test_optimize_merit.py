@@ -431,3 +431,39 @@ def test_edge_thickness_block_jacobian_with_decentred_and_tilted_lenses(scenes, 
             fd = _central(M, x0, k, 1e-6 * max(1.0, abs(x0[k])), blk)
             assert np.abs(fd).max() > 0, M.cols[k].label
             np.testing.assert_allclose(J[blk, k], fd, rtol=0, atol=1e-4 * np.abs(fd).max(), err_msg=M.cols[k].label)
+
+
+def test_colour_block_holds_the_tunable_lens_of_a_start_without_listed_powers(scenes, tmp_path):
+    """The wearable start lists no tunable powers: at 486 nm its 3 D state would need 7.82 D,
+    outside the lens's 8.3-20 D. The colour block holds the primary's powers (as `analyze`'s
+    lateral colour does) instead of solving them again, so a colour stage can run from the start."""
+    d0 = lfsim.load(scenes / "ini_wearable.toml")
+    assert "power_diopters" not in d0.raw["ini"]["tunable"]
+    raw = copy.deepcopy(d0.raw)
+    del raw["optimize"]["stages"]
+    raw["optimize"]["weights"]["colour"] = 100.0
+    raw["optimize"]["sampling"] = {"stride": [16, 8], "fields": 3, "pupil": 2}
+    d = Design.from_dict(raw, str(tmp_path / "w.toml"))
+    M = IniMerit(d, d.optimize)
+    for m in M._colour0:
+        assert m.tl_power == M.model0.tl_power
+    r = M.residuals(M.x0)
+    assert np.isfinite(r).all() and dict(M.layout)["colour"] > 0
+
+
+def test_a_refused_optimization_writes_nothing(scenes, tmp_path, capsys):
+    """A stage whose merit cannot be built (a colour weight on a one-wavelength design) is
+    refused in one line, exit 2, before the output folder or its checkpoints exist."""
+    import tomli_w
+
+    raw = copy.deepcopy(lfsim.load(scenes / "ini_freeform.toml").raw)
+    raw["system"]["wavelengths_nm"] = [587.5618]
+    raw["system"]["primary_wavelength_nm"] = 587.5618
+    raw["optimize"] = {"variables": ["S3.x2y0"], "weights": {"colour": 1.0}, "iterations": 1}
+    p = tmp_path / "mono.toml"
+    p.write_text(tomli_w.dumps(raw))
+    out = tmp_path / "out"
+    assert main(["optimize", str(p), "--out", str(out), "--no-analyze"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "optimize.weights.colour" in err, err
+    assert not out.exists()

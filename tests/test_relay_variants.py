@@ -40,3 +40,23 @@ def test_a_relay_that_is_not_a_singlet_is_refused():
         rv.ideal_relay(raw, ("R1b",))
     with pytest.raises(ValueError, match="no surface"):
         rv.reglass_relay(raw, "N-BK7", ("Q9",))
+
+
+@pytest.mark.parametrize("argv, said", [
+    (["--optimize", "bogus"], "--optimize 'bogus': 'bogus' is not a stage of ini_wearable.toml"),
+    (["--glass", "NOPE"], "--glass 'NOPE': unknown material 'NOPE'"),
+    (["--lenses", "R1a,R9a"], "no surface named 'R9a'"),
+    (["--design", "TYPO"], "nmae"),
+])
+def test_bad_arguments_give_one_line_and_write_nothing(tmp_path, capsys, argv, said):
+    """Checked before anything is written: the design against the schema, the stages, the glass."""
+    if argv[0] == "--design":
+        typo = tmp_path / "typo.toml"
+        typo.write_text((ROOT / "scenes" / "ini_wearable.toml").read_text().replace("\nname = ", "\nnmae = ", 1))
+        argv = ["--design", str(typo)]
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as e:
+        rv.main(["--out", str(out), *argv])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and err.count("\n") == 1 and said in err and "Traceback" not in err, err
+    assert not out.exists()

@@ -299,7 +299,9 @@ class IniMerit:
         if spec.weights.colour > 0 and self.colour_wavelengths is None:
             raise ValueError(f"{design.path}: optimize.weights.colour = {spec.weights.colour:g} needs two or "
                              f"more [system] wavelengths_nm (the design has {waves})")
-        self._colour0 = ([IniModel(design, wavelength_nm=w) for w in self.colour_wavelengths]
+        # The tunable lens held at the primary's powers: solved again at 486 nm, a start's 3 D
+        # state can need a power outside the lens's range and refuse the design.
+        self._colour0 = ([model0.at_wavelength(w) for w in self.colour_wavelengths]
                          if spec.weights.colour > 0 else None)
 
     # ------------------------------------------------------------ designs

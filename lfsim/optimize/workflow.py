@@ -165,7 +165,6 @@ def optimize(design: Design, out_dir, stages=None, iterations: int | None = None
         raise ValueError(f"{design.path}: optimize.variables is empty: nothing to vary")
     todo = plans(design, stages, iterations, solver)
     out = Path(out_dir)
-    (out / "checkpoints").mkdir(parents=True, exist_ok=True)
     current = design
     solvers = sorted({p.solver for p in todo})
     doc = {"design": design.path, "solver": solvers[0] if len(solvers) == 1 else ",".join(solvers),
@@ -190,6 +189,7 @@ def optimize(design: Design, out_dir, stages=None, iterations: int | None = None
         x0 = np.clip(merit.x0, lo, hi)
         r0, _, det0 = merit.evaluate(x0, derivatives=False)
         ckpt = out / "checkpoints" / f"{stage}.npz"
+        ckpt.parent.mkdir(parents=True, exist_ok=True)  # once the stage's merit stands: a refusal writes nothing
         log(f"stage {stage}: {len(cols)} variables, {merit.rays} rays, stride "
             f"{merit.stride[0]}x{merit.stride[1]}, up to {n_it} iterations ({plan.solver}), merit {float(r0 @ r0):.6g}")
         scale = np.maximum(np.abs(x0), 1e-3)
