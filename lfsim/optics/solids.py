@@ -39,11 +39,22 @@ from .. import backend
 from .components import components
 from .prescription import Aperture, System
 from .surfaces import intersect, normal, sag
+from .tracer import _rot_xyz as rot_xyz
 
 #: Shortest distance counted as a hit (mm): the line's own start point is not one.
 _T_MIN = 1e-9
 #: Faces within this angle of parallel (at their aperture centres) are opposite faces.
 OPPOSITE_DEG = 45.0
+
+
+def _np_matrix(M) -> np.ndarray:
+    """(B, 3, 3) of a Dr.Jit Matrix3 of width B."""
+    return np.stack([np.stack([np.asarray(M[a][b], dtype=np.float64) for b in range(3)], -1) for a in range(3)], -2)
+
+
+def _np_vector(v) -> np.ndarray:
+    """(B, 3) of a Dr.Jit Array3 of width B."""
+    return np.stack([np.asarray(v[a], dtype=np.float64) for a in range(3)], -1)
 
 
 def prisms(system: System) -> list[list[int]]:
@@ -87,9 +98,8 @@ def prism_thickness(tracer, values, points: int = 9) -> tuple[np.ndarray, list[t
         def shape(i, reps):  # surface i's shape, block b's coefficients on lanes b·reps … (b+1)·reps − 1
             return tracer.shape(packed, i, backend.from_numpy(T.UInt32, np.repeat(np.arange(B, dtype=np.uint32), reps)))
 
-        R = [np.stack([np.stack([np.asarray(Ri[a][b], dtype=np.float64) for b in range(3)], -1)
-                       for a in range(3)], -2) for Ri in Rs]  # (B, 3, 3) each
-        o = [np.stack([np.asarray(oi[a], dtype=np.float64) for a in range(3)], -1) for oi in os_]  # (B, 3)
+        R = [_np_matrix(Ri) for Ri in Rs]  # (B, 3, 3) each
+        o = [_np_vector(oi) for oi in os_]  # (B, 3)
 
         def surface_points(i, xy):
             """Global points and unit normals (B, Q, 3) of surface i at local xy (Q, 2)."""
@@ -268,16 +278,6 @@ def glass_pairs(system, names, values, last: int) -> list[tuple[int, int, float]
 EDGE_RIM_POINTS = 64
 
 
-def _rotation_xyz(ax: np.ndarray, ay: np.ndarray, az: np.ndarray) -> np.ndarray:
-    """(B, 3, 3) R = Rx(ax)·Ry(ay)·Rz(az) (radians; the tracer's tilt order)."""
-    def rot(a, i, j):
-        c, s = np.cos(a), np.sin(a)
-        R = np.broadcast_to(np.eye(3), (len(a), 3, 3)).copy()
-        R[:, i, i], R[:, j, j], R[:, i, j], R[:, j, i] = c, c, -s, s
-        return R
-    return rot(ax, 1, 2) @ rot(ay, 2, 0) @ rot(az, 0, 1)
-
-
 def _coaxial_element(system, V: np.ndarray, col, i: int, j: int) -> bool:
     """Whether surfaces i and j sit untilted and undecentred on one axis in every row of V."""
     for s in (system.surfaces[i], system.surfaces[j]):
@@ -326,11 +326,11 @@ def rim_thickness(tracer, values, i: int, j: int, radius: float, points: int = E
     with dr.suspend_grad():
         packed = tracer.params(values=V.ravel())
         Rs, os_ = tracer.frames(packed)
-        R = [np.stack([np.stack([np.asarray(Rs[k][p][q], dtype=np.float64) for q in range(3)], -1)
-                       for p in range(3)], -2) for k in (i, j)]  # (B, 3, 3)
-        o = [np.stack([np.asarray(os_[k][p], dtype=np.float64) for p in range(3)], -1) for k in (i, j)]  # (B, 3)
+        R = [_np_matrix(Rs[k]) for k in (i, j)]  # (B, 3, 3)
+        o = [_np_vector(os_[k]) for k in (i, j)]  # (B, 3)
         deg = math.pi / 180.0
-        tilt = _rotation_xyz(*(col(f"{a.name}.tilt_{ax}") * deg for ax in "xyz"))
+        tilt = _np_matrix(rot_xyz(*(backend.from_numpy(T.Float, col(f"{a.name}.tilt_{ax}") * deg)
+                                    for ax in "xyz"), T))  # the tracer's own tilt
         R_ax = R[0] @ np.swapaxes(tilt, 1, 2)  # the frame surface i was placed from
         shift = np.stack([col(f"{a.name}.decenter_x"), col(f"{a.name}.decenter_y"), np.zeros(B)], -1)
         o_ax = o[0] - np.einsum("bij,bj->bi", R_ax, shift)
