@@ -338,3 +338,30 @@ def test_analyze_writes_package(tmp_path):
             assert written["package"][key] == pytest.approx(v, abs=1e-9), key
         else:
             assert written["package"][key] == v, key
+
+
+def test_analyze_prints_the_package_and_first_order(tmp_path, capsys):
+    """The console shows what metrics.json holds: each state's FOV and pixel, and the package."""
+    import re
+
+    from lfsim.cli import main
+
+    path = tmp_path / "small.toml"
+    path.write_text(_small())
+    out = tmp_path / "out"
+    assert main(["analyze", str(path), "--out", str(out), "--stride", "4,2", "--no-plots"]) == 0
+    text = capsys.readouterr().out
+    doc = json.loads((out / "metrics.json").read_text())
+    p = doc["package"]
+    line = next(s for s in text.splitlines() if s.strip().startswith("package:"))
+    assert f"track {p['track_mm']:.2f} mm" in line
+    assert "box {:.1f} x {:.1f} x {:.1f} mm".format(*p["bounding_box_mm"]) in line
+    assert f"eye relief {p['eye_relief_mm']:.2f} mm" in line
+    assert f"glass edge >= {p['min_edge_thickness_mm']:.3f} mm" in line
+    for D, b in doc["by_depth"].items():
+        fo = b["first_order"]
+        row = next(s for s in text.splitlines() if s.strip().startswith(f"CDP {D} D:"))
+        fov = re.search(r"FOV ([\d.]+) x ([\d.]+) deg, pixel ([\d.]+)'", row)
+        assert fov, row
+        assert [float(v) for v in fov.groups()[:2]] == [round(v, 1) for v in fo["fov_deg"]]
+        assert float(fov.group(3)) == round(max(fo["pixel_arcmin"]), 2)

@@ -124,9 +124,40 @@ def cmd_analyze(args) -> int:
         print(f"  CDP {D} D: contrast min {_num(b['contrast_nyquist_min'], '.3f')} "
               f"mean {_num(b['contrast_nyquist_mean'], '.3f')}, "
               f"RMS spot mean {_num(b['rms_spot_mean_arcmin'], '.3f')}' max {_num(b['rms_spot_max_arcmin'], '.3f')}', "
-              f"GD max {_num(b['gd_max_deg'], '.3f')} deg, PA max {_num(b['pa_max'], '.3f')}")
+              f"GD max {_num(b['gd_max_deg'], '.3f')} deg, PA max {_num(b['pa_max'], '.3f')}"
+              + _first_order_line(b.get("first_order")))
+    if doc.get("package"):
+        print("  " + _package_line(doc["package"]))
     print(f"wrote {args.out}/metrics.json" + (", " + ", ".join(doc.get("plots", [])) if doc.get("plots") else ""))
     return 0
+
+
+def _first_order_line(fo: dict | None) -> str:
+    """``, FOV 29.5 x 16.6 deg, pixel 1.91'``: the state's first order (Eqs. 8-10), for the console."""
+    if not fo:
+        return ""
+    fx, fy = fo["fov_deg"]
+    return f", FOV {fx:.1f} x {fy:.1f} deg, pixel {max(fo['pixel_arcmin']):.2f}'"
+
+
+def _package_line(p: dict) -> str:
+    """One console line of ``metrics.json`` ``package`` (the figures the package limits name)."""
+    parts = [f"package: track {_num(p.get('track_mm'), '.2f')} mm"]
+    if p.get("bounding_box_mm"):
+        parts.append("box {:.1f} x {:.1f} x {:.1f} mm".format(*p["bounding_box_mm"]))
+    if p.get("prism_box_mm"):
+        parts.append("prism {:.1f} x {:.1f} x {:.1f} mm".format(*p["prism_box_mm"]))
+    parts.append(f"eye relief {_num(p.get('eye_relief_mm'), '.2f')} mm")
+    if p.get("max_clear_diameter_mm") is not None:
+        parts.append(f"largest clear diameter {p['max_clear_diameter_mm']:.2f} mm")
+    if p.get("tunable_footprint_mm") is not None:
+        parts.append(f"tunable lens footprint {p['tunable_footprint_mm']:.2f} of "
+                     f"{_num(p.get('tunable_clear_aperture_mm'), '.1f')} mm")
+    parts.append(f"glass edge >= {_num(p.get('min_edge_thickness_mm'), '.3f')} mm, "
+                 f"centre >= {_num(p.get('min_center_thickness_mm'), '.3f')} mm")
+    if p.get("rays_failed"):
+        parts.append(f"{p['rays_failed']} of {p['rays_traced']} package rays failed")
+    return ", ".join(parts)
 
 
 def _num(v, fmt: str) -> str:
