@@ -191,3 +191,18 @@ def test_object_space_na_needs_a_finite_object(tmp_path, capsys, scenes, distanc
     p.write_text(text.replace("distance = inf", "distance = 500.0", 1))
     fo = lfsim.load(p).first_order(method="paraxial")
     assert fo.entrance_pupil_diameter > 0
+
+
+def test_a_surface_error_names_the_surface(tmp_path):
+    """Past the index, the message names the surface a file knows it by; an unnamed surface
+    is named by its index only; ``key`` stays the dotted path."""
+    p = tmp_path / "bad.toml"
+    p.write_text(GOOD.replace("radius = 20.0", 'name = "front"\nradius = 0', 1))
+    with pytest.raises(DesignError) as e:
+        lfsim.load(p)
+    assert e.value.key == "surfaces[0].radius" and e.value.surface == "front"
+    assert "surfaces[0].radius = 0.0 (surface 'front'): " in str(e.value)
+    p.write_text(GOOD.replace("radius = 20.0", "radius = 0", 1))
+    with pytest.raises(DesignError) as e:
+        lfsim.load(p)
+    assert e.value.surface is None and "(surface" not in str(e.value)

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..optics.prescription import System
+from .errors import surface_names
 from .loader import ini_from_dict, load_system, optimize_from_dict, system_from_dict
 
 
@@ -67,10 +68,11 @@ class Design:
         self.raw = raw or {}
         self.path = path
         self._tracers: dict = {}
-        #: The validated ``[ini]`` section (:class:`IniSpec`), None for a plain lens.
-        self.ini = ini_from_dict(self.raw, system, path or "<dict>")
-        #: The validated ``[optimize]`` section (:class:`OptimizeSpec`), None when absent.
-        self.optimize = optimize_from_dict(self.raw, system, self.ini, path or "<dict>")
+        with surface_names(self.raw):
+            #: The validated ``[ini]`` section (:class:`IniSpec`), None for a plain lens.
+            self.ini = ini_from_dict(self.raw, system, path or "<dict>")
+            #: The validated ``[optimize]`` section (:class:`OptimizeSpec`), None when absent.
+            self.optimize = optimize_from_dict(self.raw, system, self.ini, path or "<dict>")
 
     @classmethod
     def from_dict(cls, data: dict, file: str = "<dict>") -> Design:

@@ -45,7 +45,7 @@ from ..optics.prescription import (
     Surface,
     System,
 )
-from .errors import MISSING, DesignError
+from .errors import MISSING, DesignError, surface_names
 
 _NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_\-]*$")
 _XY_RE = re.compile(r"^x(\d+)y(\d+)$")
@@ -349,6 +349,11 @@ def optimize_from_dict(data: dict, system: System, ini=None, file: str = "<dict>
 
 def system_from_dict(data: dict, file: str = "<dict>") -> System:
     """Validate a parsed design table and build the optics ``System``."""
+    with surface_names(data):
+        return _system_from_dict(data, file)
+
+
+def _system_from_dict(data: dict, file: str) -> System:
     ctx = _Ctx(file)
     if not isinstance(data, dict):
         raise ctx.err("", data, "a design file must be a TOML table")
