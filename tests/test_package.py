@@ -365,3 +365,27 @@ def test_analyze_prints_the_package_and_first_order(tmp_path, capsys):
         assert fov, row
         assert [float(v) for v in fov.groups()[:2]] == [round(v, 1) for v in fo["fov_deg"]]
         assert float(fov.group(3)) == round(max(fo["pixel_arcmin"]), 2)
+
+
+def test_the_shipped_wearable_shows_the_papers_field_inside_its_package():
+    """scenes/ini_wearable_optimized.toml: 30 x 18 deg at its 1 D state (first order, Eqs. 8-10:
+    (lenslets - 1) view steps plus one view of 125 pixels per axis), 17 x 9 lenslets of 125 x 125
+    pixels of 8 um, and every package limit of its [optimize.targets]."""
+    design = lfsim.load(SCENES / "ini_wearable_optimized.toml")
+    model = IniModel(design)
+    assert (model.arr.m, model.arr.n) == (17, 9)
+    assert design.ini.pixels_per_ei == (125, 125) and design.ini.pixel_pitch == 0.008
+    st = model.state(list(model.depths).index(1.0))
+    np.testing.assert_allclose(st.fov_deg, (30.0, 18.0), atol=0.15)
+    for ax, lenslets in enumerate((17, 9)):  # the field is the views laid side by side
+        half = 0.5 * (lenslets - 1) * math.tan(math.radians(st.delta_theta_eic_deg[ax])) \
+            + 0.5 * math.tan(math.radians(st.theta_eic_deg[ax]))
+        assert st.fov_deg[ax] == pytest.approx(2 * math.degrees(math.atan(half)), abs=1e-9)
+    p = package(model)
+    t = design.optimize.targets
+    assert p["track_mm"] <= t.track_max_mm and p["eye_relief_mm"] >= t.eye_relief_min_mm
+    assert all(v <= lim for v, lim in zip(p["bounding_box_mm"], t.box_max_mm))
+    assert all(v <= lim for v, lim in zip(p["prism_box_mm"], t.prism_box_max_mm))
+    assert p["max_clear_diameter_mm"] <= t.clear_diameter_max_mm
+    assert p["tunable_footprint_mm"] <= t.tunable_aperture_mm
+    assert min(p["min_edge_thickness_mm"], p["min_center_thickness_mm"]) >= 1.0
