@@ -255,6 +255,36 @@ def test_wedged_lens_edge(tilt):
     assert edge_thickness(tr, w, i, j, rad) == pytest.approx(3.0 + sphere_sag(-100.0, 13.0), abs=1e-10)
 
 
+@pytest.mark.parametrize("d", [0.0, 0.8])
+def test_element_section_is_the_lens_as_built(d):
+    """The layout's section of W (R = +-100, 3 mm, semi-diameter 12) decentred as a whole by d:
+    its faces are the spheres about the moved vertex, sampled across the rim about the relay
+    axis (radius 12 + |d|), and the ends are the rim thicknesses at +-90 deg (the edge)."""
+    from lfsim.optics.solids import element_section, glass_pairs, rim_thickness
+
+    model = IniModel(_design(_small(None)))
+    tr = model.tracer
+    v = model.values0.copy()
+    for name in ("W1", "W2"):
+        v[tr.index[f"{name}.decenter_y"]] = d
+    i, j, rad = glass_pairs(model.system, tr.names, v, model.spec.viewing_window)[0]
+    front, back = element_section(tr, v, i, j, rad, points=33)
+    assert np.isfinite(front).all() and np.isfinite(back).all()
+    R_rim = 12.0 + abs(d)
+    np.testing.assert_allclose(front[:, 1], np.linspace(-R_rim, R_rim, 33), atol=1e-12)
+    np.testing.assert_allclose(back[:, 1], front[:, 1], atol=1e-12)
+    np.testing.assert_allclose(front[:, 0], 0.0, atol=1e-12)
+    z0 = front[16, 2]  # the vertex plane of W1 (y = 0 is on the lens axis only when d = 0)
+    h = front[:, 1] - d
+    np.testing.assert_allclose(front[:, 2] - z0, [sphere_sag(100.0, y) - sphere_sag(100.0, d) for y in h],
+                               atol=1e-9)
+    np.testing.assert_allclose(back[:, 2] - front[:, 2],
+                               [3.0 - sphere_sag(100.0, y) + sphere_sag(-100.0, y) for y in h], atol=1e-9)
+    rim = rim_thickness(tr, v, i, j, rad, points=4)[0]  # at 0, 90, 180, 270 deg
+    assert back[-1, 2] - front[-1, 2] == pytest.approx(rim[1], abs=1e-9)
+    assert back[0, 2] - front[0, 2] == pytest.approx(rim[3], abs=1e-9)
+
+
 def test_edge_thickness_batches_parameter_vectors():
     """(B, n) parameter vectors give the B edge thicknesses of one launch, each as alone."""
     from lfsim.optics.solids import edge_thickness, glass_pairs

@@ -12,6 +12,7 @@ import numpy as np
 
 from ..fileio import save_figure, write_json
 from ..optics.sampling import field_rays, pupil_grid
+from ..optics.solids import element_section, glass_pairs
 
 
 def _figure():
@@ -64,8 +65,22 @@ def plot_layout(design, fo, path, rays_per_field: int = 7):
     tracer = design.tracer()
     frames = tracer.frames_numpy()
     fig, ax = plt.subplots(figsize=(10, 4.5))
+    # Glass elements drawn as built (lfsim.optics.solids.element_section): both faces across
+    # the rim about the element's axis, joined by the edge, so that a decentred, tilted or
+    # wedged lens shows its blank; other surfaces over their own apertures.
+    values = np.asarray(design.system.parameter_values(design.wavelength()))
+    drawn = set()
+    for i, j, rad in glass_pairs(design.system, tracer.names, values, len(design.surfaces)):
+        front, back = element_section(tracer, values, i, j, rad)
+        ok = np.isfinite(front[:, 0]) & np.isfinite(back[:, 0])
+        if ok.sum() < 2:
+            continue
+        outline = np.concatenate([front[ok], back[ok][::-1], front[ok][:1]])
+        ax.fill(outline[:, 2], outline[:, 1], color="tab:blue", alpha=0.08, lw=0)
+        ax.plot(outline[:, 2], outline[:, 1], color="0.2", lw=1.2)
+        drawn.update((i, j))
     for i, s in enumerate(design.surfaces):
-        if s.interaction == "break":
+        if s.interaction == "break" or i in drawn:
             continue
         R, o = frames[i]
         ap = s.aperture

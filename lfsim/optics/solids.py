@@ -288,6 +288,56 @@ def _coaxial_element(system, V: np.ndarray, col, i: int, j: int) -> bool:
     return True
 
 
+def _rim_radius(system, col, i: int, j: int, radius: float) -> np.ndarray:
+    """(B,) radius of the circle about the element's axis that holds both surfaces'
+    circular clear apertures where they sit (``radius`` where neither is circular)."""
+    rim = np.zeros(len(col(f"{system.surfaces[i].name}.decenter_x")))
+    for s in (system.surfaces[i], system.surfaces[j]):
+        ap = s.aperture
+        if ap is not None and ap.kind == "circular":
+            dx = col(f"{s.name}.decenter_x") + ap.decenter[0]
+            dy = col(f"{s.name}.decenter_y") + ap.decenter[1]
+            rim = np.maximum(rim, ap.radius + np.hypot(dx, dy))
+    return np.where(rim > 0.0, rim, radius)
+
+
+def _axial_hits(tracer, V: np.ndarray, col, i: int, j: int, local: np.ndarray):
+    """Where the lines through ``local`` (B, Q, 3) points of the element's axis frame
+    (surface i's frame before its own decenter and tilt, to which both surfaces return),
+    parallel to that axis, meet surfaces i and j: the points P (B, Q, 3), the axis
+    direction D (B, Q, 3) and the parameters t_i, t_j (B, Q) along it (NaN where a
+    line misses), global frame, for B parameter vectors in one launch."""
+    T, system = tracer.T, tracer.system
+    a = system.surfaces[i]
+    B, Q = local.shape[:2]
+    with dr.suspend_grad():
+        packed = tracer.params(values=V.ravel())
+        Rs, os_ = tracer.frames(packed)
+        R = [_np_matrix(Rs[k]) for k in (i, j)]  # (B, 3, 3)
+        o = [_np_vector(os_[k]) for k in (i, j)]  # (B, 3)
+        deg = math.pi / 180.0
+        tilt = _np_matrix(rot_xyz(*(backend.from_numpy(T.Float, col(f"{a.name}.tilt_{ax}") * deg)
+                                    for ax in "xyz"), T))  # the tracer's own tilt
+        R_ax = R[0] @ np.swapaxes(tilt, 1, 2)  # the frame surface i was placed from
+        shift = np.stack([col(f"{a.name}.decenter_x"), col(f"{a.name}.decenter_y"), np.zeros(B)], -1)
+        o_ax = o[0] - np.einsum("bij,bj->bi", R_ax, shift)
+        P = np.einsum("bij,bqj->bqi", R_ax, local) + o_ax[:, None]  # (B, Q, 3), global
+        D = np.broadcast_to(R_ax[:, :, 2][:, None], P.shape)  # the axis
+        block = backend.from_numpy(T.UInt32, np.repeat(np.arange(B, dtype=np.uint32), Q))
+        t = []
+        for k, Rk, ok_ in ((i, R[0], o[0]), (j, R[1], o[1])):
+            pl = np.einsum("bji,bqj->bqi", Rk, P - ok_[:, None])  # R^T (P − o)
+            dl = np.einsum("bji,bqj->bqi", Rk, D)
+            pa = T.Array3(*backend.from_numpy(T.Float, *(pl[..., c].ravel() for c in range(3))))
+            da = T.Array3(*backend.from_numpy(T.Float, *(dl[..., c].ravel() for c in range(3))))
+            tk, hit, conv = intersect(pa, da, tracer.shape(packed, k, block), T, True,
+                                      tracer.newton_tol, tracer.newton_max_iter)
+            dr.eval(tk, hit, conv)
+            tk = np.asarray(tk, dtype=np.float64).reshape(B, Q)
+            t.append(np.where(np.asarray(hit & conv).reshape(B, Q), tk, np.nan))
+    return P, D, t[0], t[1]
+
+
 def rim_thickness(tracer, values, i: int, j: int, radius: float, points: int = EDGE_RIM_POINTS) -> np.ndarray:
     """Glass thickness (B, points) at ``points`` equally spaced points of the rim of the
     element between surfaces i and j, for B parameter vectors ``values`` (B, n_params)
@@ -305,52 +355,37 @@ def rim_thickness(tracer, values, i: int, j: int, radius: float, points: int = E
     or wedged) are measured as they are built. −inf where the line misses a
     surface.
     """
-    T, names, system = tracer.T, tracer.names, tracer.system
+    names = tracer.names
     V = np.atleast_2d(np.asarray(values, dtype=np.float64))
-    B = len(V)
 
     def col(name):
         return V[:, names.index(name)]
 
-    a = system.surfaces[i]
-    rim = np.zeros(B)
-    for s in (a, system.surfaces[j]):
-        ap = s.aperture
-        if ap is not None and ap.kind == "circular":
-            dx = col(f"{s.name}.decenter_x") + ap.decenter[0]
-            dy = col(f"{s.name}.decenter_y") + ap.decenter[1]
-            rim = np.maximum(rim, ap.radius + np.hypot(dx, dy))
-    rim = np.where(rim > 0.0, rim, radius)
-
+    rim = _rim_radius(tracer.system, col, i, j, radius)
     phi = np.linspace(0.0, 2.0 * math.pi, points, endpoint=False)
-    with dr.suspend_grad():
-        packed = tracer.params(values=V.ravel())
-        Rs, os_ = tracer.frames(packed)
-        R = [_np_matrix(Rs[k]) for k in (i, j)]  # (B, 3, 3)
-        o = [_np_vector(os_[k]) for k in (i, j)]  # (B, 3)
-        deg = math.pi / 180.0
-        tilt = _np_matrix(rot_xyz(*(backend.from_numpy(T.Float, col(f"{a.name}.tilt_{ax}") * deg)
-                                    for ax in "xyz"), T))  # the tracer's own tilt
-        R_ax = R[0] @ np.swapaxes(tilt, 1, 2)  # the frame surface i was placed from
-        shift = np.stack([col(f"{a.name}.decenter_x"), col(f"{a.name}.decenter_y"), np.zeros(B)], -1)
-        o_ax = o[0] - np.einsum("bij,bj->bi", R_ax, shift)
-        local = np.stack([np.cos(phi), np.sin(phi), np.zeros_like(phi)], -1)[None] * rim[:, None, None]
-        P = np.einsum("bij,bqj->bqi", R_ax, local) + o_ax[:, None]  # (B, Q, 3) rim points, global
-        D = np.broadcast_to(R_ax[:, :, 2][:, None], P.shape)  # the axis
-        block = backend.from_numpy(T.UInt32, np.repeat(np.arange(B, dtype=np.uint32), points))
-        t = []
-        for k, Rk, ok_ in ((i, R[0], o[0]), (j, R[1], o[1])):
-            pl = np.einsum("bji,bqj->bqi", Rk, P - ok_[:, None])  # R^T (P − o)
-            dl = np.einsum("bji,bqj->bqi", Rk, D)
-            pa = T.Array3(*backend.from_numpy(T.Float, *(pl[..., c].ravel() for c in range(3))))
-            da = T.Array3(*backend.from_numpy(T.Float, *(dl[..., c].ravel() for c in range(3))))
-            tk, hit, conv = intersect(pa, da, tracer.shape(packed, k, block), T, True,
-                                      tracer.newton_tol, tracer.newton_max_iter)
-            dr.eval(tk, hit, conv)
-            tk = np.asarray(tk, dtype=np.float64).reshape(B, points)
-            t.append(np.where(np.asarray(hit & conv).reshape(B, points), tk, np.nan))
-    e = t[1] - t[0]
+    local = np.stack([np.cos(phi), np.sin(phi), np.zeros_like(phi)], -1)[None] * rim[:, None, None]
+    _, _, t0, t1 = _axial_hits(tracer, V, col, i, j, local)
+    e = t1 - t0
     return np.where(np.isfinite(e), e, -math.inf)
+
+
+def element_section(tracer, values, i: int, j: int, radius: float, points: int = 65):
+    """The y-z section of the glass element between surfaces i and j as it is built:
+    ``(front, back)`` (points, 3) global points where the lines parallel to its axis,
+    across the rim's diameter in the axis frame's y-z plane (:func:`rim_thickness`),
+    meet each surface; NaN rows where a line misses. The lens's edge joins the two
+    profiles' ends, along the axis."""
+    names = tracer.names
+    V = np.atleast_2d(np.asarray(values, dtype=np.float64))[:1]
+
+    def col(name):
+        return V[:, names.index(name)]
+
+    rim = _rim_radius(tracer.system, col, i, j, radius)
+    y = np.linspace(-1.0, 1.0, points)
+    local = np.stack([np.zeros_like(y), y, np.zeros_like(y)], -1)[None] * rim[:, None, None]
+    P, D, t0, t1 = _axial_hits(tracer, V, col, i, j, local)
+    return P[0] + t0[0][:, None] * D[0], P[0] + t1[0][:, None] * D[0]
 
 
 def edge_thickness(tracer, values, i: int, j: int, radius: float, points: int = EDGE_RIM_POINTS):
