@@ -206,3 +206,51 @@ def test_a_surface_error_names_the_surface(tmp_path):
     with pytest.raises(DesignError) as e:
         lfsim.load(p)
     assert e.value.surface is None and "(surface" not in str(e.value)
+
+
+@pytest.mark.parametrize("d_b", [0.0, 1.5])
+def test_decentred_glass_whose_faces_cross_is_refused(tmp_path, d_b):
+    """Faces decentred where they sit (A by 1 mm, B by d_b, each aperture moved with its face):
+    the glass is sampled about each face's own vertex over the apertures' overlap. A negative
+    centre thickness is refused naming the surface. On the axis of symmetry A's rim point inside
+    B's aperture lies 6 from A's vertex and 6 - |d_b - 1| from B's, so t below
+    sag(6) + sag(6 - |d_b - 1|) crosses there; at t = 2 sag(6) + 0.01 no point of the overlap
+    (each at most 6 from both vertices) is thinner than 0.01."""
+    R, h = 20.0, 6.0
+
+    def text(thickness):
+        return f"""
+[system]
+aperture = {{ type = "epd", value = 10.0 }}
+[[surfaces]]
+name = "A"
+radius = {R}
+thickness = {thickness}
+material = "N-BK7"
+semi_diameter = {h}
+decenter = [0.0, 1.0]
+[[surfaces]]
+name = "B"
+radius = {-R}
+thickness = 40.0
+semi_diameter = {h}
+decenter = [0.0, {d_b}]
+[[surfaces]]
+name = "image"
+dummy = true
+"""
+
+    def sag(r):
+        return R - math.sqrt(R * R - r * r)
+
+    p = tmp_path / "x.toml"
+    p.write_text(text(-0.5))
+    with pytest.raises(DesignError) as e:
+        lfsim.load(p)
+    assert e.value.key == "surfaces[0].thickness" and e.value.surface == "A"
+    assert "'A' and 'B' cross inside their clear apertures" in str(e.value)
+    p.write_text(text(sag(h) + sag(h - abs(d_b - 1.0)) - 0.01))
+    with pytest.raises(DesignError, match="cross inside their clear apertures"):
+        lfsim.load(p)
+    p.write_text(text(2.0 * sag(h) + 0.01))
+    lfsim.load(p)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import sys
 
 from ..design import load
@@ -133,11 +134,12 @@ def cmd_analyze(args) -> int:
 
 
 def _first_order_line(fo: dict | None) -> str:
-    """``, FOV 29.5 x 16.6 deg, pixel 1.91'``: the state's first order (Eqs. 8-10), for the console."""
+    """``, FOV 29.5 x 16.6 deg, pixel 1.91 x 1.83'``: the state's first order (Eqs. 8-10), x and y,
+    for the console."""
     if not fo:
         return ""
-    fx, fy = fo["fov_deg"]
-    return f", FOV {fx:.1f} x {fy:.1f} deg, pixel {max(fo['pixel_arcmin']):.2f}'"
+    (fx, fy), (px, py) = fo["fov_deg"], fo["pixel_arcmin"]
+    return f", FOV {fx:.1f} x {fy:.1f} deg, pixel {px:.2f} x {py:.2f}'"
 
 
 def _package_line(p: dict) -> str:
@@ -153,11 +155,16 @@ def _package_line(p: dict) -> str:
     if p.get("tunable_footprint_mm") is not None:
         parts.append(f"tunable lens footprint {p['tunable_footprint_mm']:.2f} of "
                      f"{_num(p.get('tunable_clear_aperture_mm'), '.1f')} mm")
-    parts.append(f"glass edge >= {_num(p.get('min_edge_thickness_mm'), '.3f')} mm, "
-                 f"centre >= {_num(p.get('min_center_thickness_mm'), '.3f')} mm")
+    parts.append(f"glass edge >= {_floor3(p.get('min_edge_thickness_mm'))} mm, "
+                 f"centre >= {_floor3(p.get('min_center_thickness_mm'))} mm")
     if p.get("rays_failed"):
         parts.append(f"{p['rays_failed']} of {p['rays_traced']} package rays failed")
     return ", ".join(parts)
+
+
+def _floor3(v) -> str:
+    """A least value after ">=", rounded down to 1 µm so that the bound printed holds."""
+    return "n/a" if v is None else f"{math.floor(v * 1000.0 + 1e-9) / 1000.0:.3f}"
 
 
 def _num(v, fmt: str) -> str:

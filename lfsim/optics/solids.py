@@ -165,15 +165,19 @@ def prism_thickness(tracer, values, points: int = 9) -> tuple[np.ndarray, list[t
 CROSSING_TOL = 1e-9
 
 
-def _coaxial_pair(system: System, i: int) -> bool:
-    """Whether surface i + 1 sits on surface i's local axis, ``thickness`` apart."""
+def _pair_offsets(system: System, i: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """The vertices' offsets (x, y) of surfaces i and i + 1 from the axis surface i was
+    placed on, when both sit on that axis untilted (decentred or not), ``thickness``
+    apart; None otherwise (a tilt, a global position, a coordinate break, a copy)."""
     a, b = system.surfaces[i], system.surfaces[i + 1]
     if a.same_as is not None or b.same_as is not None or a.global_position is not None:
-        return False
-    if b.global_position is not None or any(b.tilt) or any(b.decenter) or b.interaction == "break":
-        return False
-    # A tilted or decentred surface that returns the axis sends the next one back to the old axis.
-    return not ((any(a.tilt) or any(a.decenter)) and a.return_axis)
+        return None
+    if b.global_position is not None or any(a.tilt) or any(b.tilt) or b.interaction == "break":
+        return None
+    off_a = np.asarray(a.decenter, dtype=np.float64)
+    # A decentred surface that returns the axis sends the next one back to the old axis.
+    off_b = np.asarray(b.decenter, dtype=np.float64) + (0.0 if a.return_axis else off_a)
+    return off_a, off_b
 
 
 def crossings(system: System, points: int = 17) -> list[tuple[int, int, float, float]]:
@@ -188,9 +192,10 @@ def crossings(system: System, points: int = 17) -> list[tuple[int, int, float, f
     only). Where it is negative the surfaces cross inside their apertures (or
     the centre thickness itself is negative), which no lens can do; the
     worst point of each such element is returned (after an odd number of
-    mirrors light runs toward −z and the thickness is counted that way). Pairs with a surface marked
-    ``virtual``, and pairs not on one axis (tilted, decentred or globally
-    placed), are not checked.
+    mirrors light runs toward −z and the thickness is counted that way). A
+    decentred surface is sampled where it sits: its sag about its own vertex,
+    over its aperture moved with it. Pairs with a surface marked ``virtual``,
+    and pairs not on one axis (tilted or globally placed), are not checked.
     """
     from .vector import DesignVector
 
@@ -204,28 +209,30 @@ def crossings(system: System, points: int = 17) -> list[tuple[int, int, float, f
         flips += a.interaction in ("reflect", "tir")
         if a.interaction != "refract" or b.interaction == "break" or a.virtual or b.virtual:
             continue
-        if a.material.index(system.primary_wavelength_nm) <= 1.0001 or not _coaxial_pair(system, i):
+        offsets = _pair_offsets(system, i)
+        if a.material.index(system.primary_wavelength_nm) <= 1.0001 or offsets is None:
             continue
+        off_a, off_b = offsets
         if (a.array is None) != (b.array is None) or a.array != b.array:
             continue
-        aps = [s.aperture for s in (a, b) if s.aperture is not None]
+        aps = [(s.aperture, off) for s, off in ((a, off_a), (b, off_b)) if s.aperture is not None]
         if a.array is not None and not aps:
             arr = system.arrays[a.array]
-            aps = [Aperture("rectangular", half_width=(0.5 * arr.pitch[0], 0.5 * arr.pitch[1]))]
-        if aps:
-            xy = _grid(aps[0], points)
+            aps = [(Aperture("rectangular", half_width=(0.5 * arr.pitch[0], 0.5 * arr.pitch[1])), off_a)]
+        if aps:  # points of the axis frame inside every aperture where it sits
+            xy = _grid(aps[0][0], points) + aps[0][1]
             keep = np.ones(len(xy), bool)
-            for ap in aps[1:]:
-                keep &= _inside(ap, xy[:, 0], xy[:, 1])
-            xy = np.vstack([xy[keep], [[0.0, 0.0]]])
+            for ap, off in aps[1:]:
+                keep &= _inside(ap, xy[:, 0] - off[0], xy[:, 1] - off[1])
+            xy = np.vstack([xy[keep], [off_a]])
         else:
-            xy = np.zeros((1, 2))
+            xy = off_a[None]
         sa, sb = vec.shape(i, get), vec.shape(i + 1, get)
         d = float(get(f"{a.name}.thickness"))
         worst = None
         for x, y in xy:
-            za, _, _, ina = sag(float(x), float(y), sa)
-            zb, _, _, inb = sag(float(x), float(y), sb)
+            za, _, _, ina = sag(float(x - off_a[0]), float(y - off_a[1]), sa)
+            zb, _, _, inb = sag(float(x - off_b[0]), float(y - off_b[1]), sb)
             if not (ina and inb):
                 continue
             t = (d + zb - za) * (-1.0 if flips % 2 else 1.0)
