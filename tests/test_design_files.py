@@ -122,14 +122,13 @@ def test_material_kinds(make_design):
     assert d.surfaces[0].material.index(450.0) == 1.49
 
 
-@pytest.mark.parametrize("thickness", [-8.0, 0.1])
-def test_glass_whose_faces_cross_is_refused(tmp_path, thickness):
-    """A lens with a negative centre thickness, or with faces that cross inside their clear
-    apertures (a negative edge thickness), is refused in one line naming both surfaces, the
-    radial height and the glass thickness there (closed form for two spheres); marking a face
-    ``virtual`` accepts it as deliberate geometry."""
-    R, h = 20.0, 6.0
-    text = f"""
+def _biconvex(R: float, h: float, thickness: float, decenter_a=None, decenter_b=None) -> str:
+    """A design of one N-BK7 lens A|B (radii +-R, semi-diameter h), each face optionally
+    decentred in y."""
+    def dec(d):
+        return "" if d is None else f"\ndecenter = [0.0, {d}]"
+
+    return f"""
 [system]
 aperture = {{ type = "epd", value = 10.0 }}
 [[surfaces]]
@@ -137,16 +136,26 @@ name = "A"
 radius = {R}
 thickness = {thickness}
 material = "N-BK7"
-semi_diameter = {h}
+semi_diameter = {h}{dec(decenter_a)}
 [[surfaces]]
 name = "B"
 radius = {-R}
 thickness = 40.0
-semi_diameter = {h}
+semi_diameter = {h}{dec(decenter_b)}
 [[surfaces]]
 name = "image"
 dummy = true
 """
+
+
+@pytest.mark.parametrize("thickness", [-8.0, 0.1])
+def test_glass_whose_faces_cross_is_refused(tmp_path, thickness):
+    """A lens with a negative centre thickness, or with faces that cross inside their clear
+    apertures (a negative edge thickness), is refused in one line naming both surfaces, the
+    radial height and the glass thickness there (closed form for two spheres); marking a face
+    ``virtual`` accepts it as deliberate geometry."""
+    R, h = 20.0, 6.0
+    text = _biconvex(R, h, thickness)
     p = tmp_path / "x.toml"
     p.write_text(text)
     with pytest.raises(DesignError) as e:
@@ -219,26 +228,7 @@ def test_decentred_glass_whose_faces_cross_is_refused(tmp_path, d_b):
     R, h = 20.0, 6.0
 
     def text(thickness):
-        return f"""
-[system]
-aperture = {{ type = "epd", value = 10.0 }}
-[[surfaces]]
-name = "A"
-radius = {R}
-thickness = {thickness}
-material = "N-BK7"
-semi_diameter = {h}
-decenter = [0.0, 1.0]
-[[surfaces]]
-name = "B"
-radius = {-R}
-thickness = 40.0
-semi_diameter = {h}
-decenter = [0.0, {d_b}]
-[[surfaces]]
-name = "image"
-dummy = true
-"""
+        return _biconvex(R, h, thickness, decenter_a=1.0, decenter_b=d_b)
 
     def sag(r):
         return R - math.sqrt(R * R - r * r)
