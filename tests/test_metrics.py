@@ -240,6 +240,7 @@ def test_gd_and_pa_against_a_nominal_reference(scenes, tmp_path):
     d_v = np.array([np.mean(ref.state(k).d_v) for k in subs.k])
     np.testing.assert_allclose(res["pa"], np.broadcast_to((delta / (math.sqrt(2) * d_v))[:, None],
                                                           res["pa"].shape), rtol=1e-9)
+    assert np.max(res["pa_shape"]) < 1e-9 * np.max(res["pa"])  # a pure shift: no deformation
     own = evaluate(model, sample(model, stride=(8, 4)))
     assert np.max(own["gd"]) < 1e-9 and np.max(own["pa"]) < 1e-9
     # The CLI flag; a reference with other CDP depths is refused (exit 2).
@@ -255,6 +256,69 @@ def test_gd_and_pa_against_a_nominal_reference(scenes, tmp_path):
     assert doc["summary"]["gd_max_deg"] == pytest.approx(math.degrees(math.atan(delta / f_ep)), rel=1e-9)
     assert main(args + ["--out", str(tmp_path / "b"), "--reference", str(tmp_path / "other.toml")]) == 2
     assert not (tmp_path / "b" / "metrics.json").exists()
+
+
+def test_pa_shape_is_eq12_without_the_footprints_shift():
+    """A footprint shifted as a whole has no shape error; one scaled about its paraxial centre
+    has all of its PA as shape error; both together: the shape part is the scaled one's."""
+    from lfsim.metrics.footprint import pa_shape
+
+    par = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]]) * 0.9 + [2.0, -1.0]
+    shift = np.array([0.3, -0.4])
+    assert pa(par + shift, par, 1.8) == pytest.approx(0.5 / (math.sqrt(2) * 1.8), rel=1e-12)
+    assert pa_shape(par + shift, par, 1.8) == pytest.approx(0.0, abs=1e-15)
+    scaled = (par - [2.0, -1.0]) * 1.25 + [2.0, -1.0]  # every marginal ray 0.225 mm further out
+    assert pa_shape(scaled, par, 1.8) == pytest.approx(pa(scaled, par, 1.8), rel=1e-12)
+    assert pa_shape(scaled, par, 1.8) == pytest.approx(0.225 / (math.sqrt(2) * 1.8), rel=1e-12)
+    assert pa_shape(scaled + shift, par, 1.8) == pytest.approx(pa_shape(scaled, par, 1.8), rel=1e-12)
+
+
+def test_axis_crossing_closed_form():
+    """Rays built to cross the axis at z = −2 (x) and +3 mm (y), with a spread of ±0.1 mm
+    there: the least-squares plane and the RMS distances are the construction's."""
+    from lfsim.metrics.footprint import axis_crossing
+
+    t = np.array([[0.1, -0.2], [-0.3, 0.05], [0.2, 0.1], [0.0, -0.1]])
+    e = np.array([[0.1, 0.1], [-0.1, -0.1], [-0.1, 0.1], [0.1, -0.1]])  # at the crossing planes
+    e -= t * (np.sum(e * t, axis=0) / np.sum(t * t, axis=0))  # orthogonal to the slopes: the plane stays
+    z0 = np.array([-2.0, 3.0])
+    pos = e - t * z0  # on the plane z = 0
+    w = axis_crossing(pos, t)
+    np.testing.assert_allclose(w["offset_mm"], z0, rtol=1e-12)
+    np.testing.assert_allclose(w["rms_mm"], np.sqrt(np.mean(e ** 2, axis=0)), rtol=1e-12)
+    np.testing.assert_allclose(w["rms_at_window_mm"], np.sqrt(np.mean(pos ** 2, axis=0)), rtol=1e-12)
+    # One column of lenslets: no slope in x, no crossing in x.
+    v = axis_crossing(np.column_stack([np.zeros(4), pos[:, 1]]), np.column_stack([np.zeros(4), t[:, 1]]))
+    assert v["offset_mm"][0] is None and v["offset_mm"][1] == pytest.approx(3.0, rel=1e-12)
+    assert axis_crossing(np.zeros((0, 2)), np.zeros((0, 2))) is None
+
+
+def test_real_viewing_window_of_a_moved_eye(scenes):
+    """The ideal design with its viewing window moved ε along the line of sight, measured
+    against the nominal design (its EI layout aims the centre chief rays at the nominal
+    window): at CDP 0 D (the tunable lens off in both designs; at 1 and 3 D the moved design
+    sets it for a CDP measured from its own window) those rays cross the axis at −ε in the
+    moved window's frame, in x and y, all of them (ideal optics). Measured against itself the
+    design's own layout aims them at its own window: 0 in every state."""
+    import tomllib
+
+    from lfsim.analysis.ini_analysis import summarize
+
+    eps = 2.5
+    data = tomllib.loads((scenes / "ini_ideal.toml").read_text())
+    nominal = lfsim.Design.from_dict(data)
+    assert data["surfaces"][2]["name"] == "EP"
+    data["surfaces"][2]["thickness"] += eps
+    ref, model = IniModel(nominal), IniModel(lfsim.Design.from_dict(data))
+    doc = summarize(evaluate(model, sample(ref, stride=(4, 2)), reference=ref), package=False)
+    assert abs(model.state(0).as_dict()["tunable_power_diopters"]) < 1e-12
+    np.testing.assert_allclose(doc["by_depth"]["0"]["viewing_window_real"]["offset_mm"], [-eps, -eps], rtol=1e-9)
+    for b in doc["by_depth"].values():
+        assert max(b["viewing_window_real"]["rms_mm"]) < 1e-9
+        assert min(b["viewing_window_real"]["rms_at_window_mm"]) > 0.1  # and not at the moved window
+    own = summarize(evaluate(model, sample(model, stride=(4, 2))), package=False)
+    for b in own["by_depth"].values():
+        np.testing.assert_allclose(b["viewing_window_real"]["offset_mm"], [0.0, 0.0], atol=1e-9)
 
 
 def _matches_central_difference(ad, diff, h, rtol, atol=0.0, what=""):

@@ -395,6 +395,11 @@ def test_analyze_prints_the_package_and_first_order(tmp_path, capsys):
         assert fov, row
         assert [float(v) for v in fov.groups()[:2]] == [round(v, 1) for v in fo["fov_deg"]]
         assert [float(v) for v in fov.groups()[2:]] == [round(v, 2) for v in fo["pixel_arcmin"]]
+        w = re.search(r"EI-centre chief rays meet the axis at x ([-+\d.]+) y ([-+\d.]+) mm", row)
+        assert w, row
+        assert [float(v) for v in w.groups()] == [round(v, 2) for v in b["viewing_window_real"]["offset_mm"]]
+    shape = re.search(r"footprint shape alone .*: max ([\d.]+), mean ([\d.]+)", text)
+    assert shape and float(shape.group(1)) == round(doc["summary"]["pa_shape_max"], 4)
 
 
 def test_the_shipped_wearable_shows_the_papers_field_inside_its_package():

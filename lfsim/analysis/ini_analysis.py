@@ -141,6 +141,7 @@ def evaluate(model: IniModel, subs=None, progress: bool = False, mtf_freqs_cpd=N
     d_v = np.array([np.mean(states[k].d_v) for k in subs.k])
     marg_ok = np.all(ok[:, :, sl["marginal"]], axis=-1)
     pa = footprint.pa(bundle.pos[:, :, sl["marginal"]], par[:, :, sl["marginal"], 0:2], d_v[:, None])
+    pa_shape = footprint.pa_shape(bundle.pos[:, :, sl["marginal"]], par[:, :, sl["marginal"], 0:2], d_v[:, None])
     # RMS spot and geometric MTF (quadrature), with the convergence check n → 2n.
     rms, cen, off = spot.rms_spot(r[:, :, sl["gl2"]], sets.weights["gl2"], ok[:, :, sl["gl2"]])
     rms_n, _, _ = spot.rms_spot(r[:, :, sl["gl"]], sets.weights["gl"], ok[:, :, sl["gl"]])
@@ -152,7 +153,8 @@ def evaluate(model: IniModel, subs=None, progress: bool = False, mtf_freqs_cpd=N
                      / np.maximum(np.sum(ok[:, :, g], axis=-1), 1)) / (model.lam * 1e-6)
     vignetted = 1.0 - np.mean(ok[:, :, sl["gl2"]], axis=-1)
     res = dict(model=model, subs=subs, sets=sets, bundle=bundle, states=states, r=r, r_par=r_par,
-               cen=cen, par=par, gd=gd, local=local, pa=pa, pa_ok=marg_ok, chief_ok=chief_ok, rms=rms, rms_n=rms_n,
+               cen=cen, par=par, gd=gd, local=local, pa=pa, pa_shape=pa_shape, pa_ok=marg_ok, chief_ok=chief_ok,
+               rms=rms, rms_n=rms_n,
                geo=geo, dif=dif, contrast=contrast, wf_rms=wf_rms, vignetted=vignetted,
                freqs_cpd=freqs_cpd, nyquist_cpd=nyq, i_nyq=i_nyq, t_trace=t_trace)
     levels = spec.refine if refine is None else int(refine)
@@ -311,6 +313,13 @@ def polychromatic_contrast(res: dict) -> dict | None:
     return {"wavelengths_nm": waves, "contrast": np.min(np.abs(total) / len(waves), axis=-1)}
 
 
+def _window_crossing(res: dict, sel: np.ndarray) -> dict | None:
+    """Where the sub-systems ``sel``'s EI-centre chief rays (field 0) cross the line of sight,
+    relative to the viewing window (:func:`lfsim.metrics.footprint.axis_crossing`; + toward the eye)."""
+    b, ch = res["bundle"], res["sets"].slices["chief"]
+    return footprint.axis_crossing(b.pos[sel, 0, ch][:, 0], b.slopes()[sel, 0, ch][:, 0])
+
+
 def summarize(res: dict, package: bool = True) -> dict:
     """The ``metrics.json`` document (the contract in docs/contracts.md plus per-sub-system details).
 
@@ -367,6 +376,8 @@ def summarize(res: dict, package: bool = True) -> dict:
             "gd_mean_deg": _masked(np.mean, res["gd"][sel], gd_ok[sel]),
             "pa_max": _masked(np.max, pa_sub[sel], sub_ok[sel]),
             "pa_mean": _masked(np.mean, res["pa"][sel], pa_ok[sel]),
+            "pa_shape_max": _masked(np.max, res["pa_shape"][sel], pa_ok[sel]),
+            "viewing_window_real": _window_crossing(res, sel & gd_ok),
             "lateral_colour_max_arcmin": _masked(np.max, lc["arcmin"][sel], lc["ok"][sel]) if lc else None,
             "lateral_colour_mean_arcmin": _masked(np.mean, lc["arcmin"][sel], lc["ok"][sel]) if lc else None,
             "first_order": res["states"][k].as_dict(),
@@ -376,6 +387,8 @@ def summarize(res: dict, package: bool = True) -> dict:
         "gd_max_deg": _masked(np.max, res["gd"], gd_ok), "gd_mean_deg": _masked(np.mean, res["gd"], gd_ok),
         "pa_max": _masked(np.max, pa_sub, sub_ok), "pa_mean": _masked(np.mean, res["pa"], pa_ok),
         "pa_within_target": int(np.sum(sub_ok & (pa_sub <= spec.pa_target))), "pa_target": spec.pa_target,
+        "pa_shape_max": _masked(np.max, res["pa_shape"], pa_ok),
+        "pa_shape_mean": _masked(np.mean, res["pa_shape"], pa_ok),
         "gd_within_target": int(np.sum(gd_ok & (res["gd"] <= spec.gd_target_deg))),
         "gd_target_deg": spec.gd_target_deg,
         "gd_failed": int(np.sum(~gd_ok)), "pa_fields_failed": int(np.sum(~pa_ok)),

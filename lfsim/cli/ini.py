@@ -107,6 +107,9 @@ def cmd_analyze(args) -> int:
     print(f"  PA (Eq. 12)  max {_num(s['pa_max'], '.4f')}, mean {_num(s['pa_mean'], '.4f')} "
           f"({s['pa_within_target']} sub-systems within {s['pa_target']:g}"
           + (f"; {s['pa_fields_failed']} fields' marginal rays failed)" if s.get("pa_fields_failed") else ")"))
+    if s.get("pa_shape_max") is not None:
+        print(f"    footprint shape alone (each footprint's own shift removed): max {s['pa_shape_max']:.4f}, "
+              f"mean {_num(s.get('pa_shape_mean'), '.4f')}")
     print(f"  contrast at Nyquist {s['nyquist_cpd']:.2f} cpd: min {_num(s['contrast_nyquist_min'], '.3f')}, "
           f"mean {_num(s['contrast_nyquist_mean'], '.3f')}")
     if s.get("lateral_colour_wavelengths_nm"):
@@ -126,7 +129,7 @@ def cmd_analyze(args) -> int:
               f"mean {_num(b['contrast_nyquist_mean'], '.3f')}, "
               f"RMS spot mean {_num(b['rms_spot_mean_arcmin'], '.3f')}' max {_num(b['rms_spot_max_arcmin'], '.3f')}', "
               f"GD max {_num(b['gd_max_deg'], '.3f')} deg, PA max {_num(b['pa_max'], '.3f')}"
-              + _first_order_line(b.get("first_order")))
+              + _first_order_line(b.get("first_order")) + _window_line(b.get("viewing_window_real")))
     if doc.get("package"):
         print("  " + _package_line(doc["package"]))
     print(f"wrote {args.out}/metrics.json" + (", " + ", ".join(doc.get("plots", [])) if doc.get("plots") else ""))
@@ -140,6 +143,15 @@ def _first_order_line(fo: dict | None) -> str:
         return ""
     (fx, fy), (px, py) = fo["fov_deg"], fo["pixel_arcmin"]
     return f", FOV {fx:.1f} x {fy:.1f} deg, pixel {px:.2f} x {py:.2f}'"
+
+
+def _window_line(w: dict | None) -> str:
+    """``, EI-centre chief rays meet the axis at x -4.36 y -7.37 mm``: where the real viewing
+    window lies relative to the design's (+ toward the eye), for the console."""
+    if not w:
+        return ""
+    zs = [f"{a} {_num(None if z is None else round(z, 2) + 0.0, '+.2f')}" for a, z in zip("xy", w["offset_mm"])]
+    return f", EI-centre chief rays meet the axis at {' '.join(zs)} mm"
 
 
 def _package_line(p: dict) -> str:
