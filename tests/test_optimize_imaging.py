@@ -87,10 +87,25 @@ def test_cli_optimizes_the_plain_lens_example(scenes, tmp_path, capsys):
     assert end["rms_spot_mean_um"] < 15.0  # the rounded, defocused start: ~170 µm
     opt = lfsim.load(out / doc["optimized_design"])
     assert opt.first_order().efl == pytest.approx(end["efl_mm"], rel=1e-6)  # the summary keeps 6 decimals
+    assert opt.name == "Cooke triplet 50 mm f/5 (optimized)"  # the start's "(optimization start)" replaced
+    assert (out / doc["optimized_design"]).read_text().startswith("# Cooke triplet 50 mm f/5: optimized from ")
     ba = doc["before_after"]["rms_spot_um"]
     assert all(a < 0.2 * b for a, b in zip(ba["after"], ba["before"]))
     assert (out / "before_after.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert (out / "after" / "spots.png").is_file()
+
+
+def test_optimized_names():
+    """What marks a name as a start is replaced; other names get "(optimized)" once."""
+    from lfsim.optimize.workflow import optimized_name
+
+    cases = {"Wearable InI-HMD (MLA + relay), starting point": "Wearable InI-HMD (MLA + relay), optimized",
+             "Triplet (optimization start)": "Triplet (optimized)", "Triplet (Start)": "Triplet (optimized)",
+             "Triplet; starting point ": "Triplet; optimized", "Ideal": "Ideal (optimized)",
+             "A start": "A start (optimized)", "A (jump start)": "A (jump start) (optimized)",
+             "B (optimized)": "B (optimized)"}
+    for name, want in cases.items():
+        assert optimized_name(name) == want, name
 
 
 def test_plain_lens_refuses_ini_stages(scenes, tmp_path, capsys):

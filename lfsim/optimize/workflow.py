@@ -25,6 +25,7 @@ would.
 
 from __future__ import annotations
 
+import re
 import time
 from pathlib import Path
 
@@ -140,6 +141,30 @@ def plans(design: Design, stages=None, iterations: int | None = None, solver: st
     return out
 
 
+
+#: A start's name ends in what marks it as one: ", starting point", " (optimization start)", " start".
+_START = re.compile(r"(?:(?P<sep>[,;:])\s*|\s*(?P<open>\(\s*))(?:optimi[sz]ation\s+)?(?:starting\s+point|start)"
+                    r"(?(open)\s*\))\s*$", re.IGNORECASE)
+
+
+def _base_name(name: str) -> str:
+    """``name`` without the words that mark it as an optimization's start."""
+    m = _START.search(name)
+    return name[:m.start()] if m else name
+
+
+def optimized_name(name: str) -> str:
+    """The name of an optimized design: the start's, its "starting point" / "(optimization start)"
+    replaced (``"X, starting point"`` → ``"X, optimized"``, ``"X (optimization start)"`` →
+    ``"X (optimized)"``), else ``"X (optimized)"``; a name that already says it is left as it is."""
+    if "optimized" in name.lower():
+        return name
+    m = _START.search(name)
+    if m is None:
+        return f"{name} (optimized)"
+    return name[:m.start()] + (" (optimized)" if m.group("open") else f"{m.group('sep')} optimized")
+
+
 def optimize(design: Design, out_dir, stages=None, iterations: int | None = None, solver: str | None = None,
              resume: bool = False, progress: bool = False, log=print, analyze_stride=(4, 2)) -> dict:
     """Run the stages; write the optimized design, the merit history and plots.
@@ -251,7 +276,7 @@ def optimize(design: Design, out_dir, stages=None, iterations: int | None = None
         shown = src.resolve().relative_to(Path.cwd().resolve())
     except ValueError:
         shown = src
-    header = [f"{design.name}: optimized from {src.name} by one run of",
+    header = [f"{_base_name(design.name)}: optimized from {src.name} by one run of",
               f"  lfsim optimize {shown} --out DIR",
               f"solver {doc['solver']}, stages {', '.join(r['stage'] for r in doc['stages'])}, "
               f"{doc['seconds']:.0f} s"]
@@ -262,7 +287,7 @@ def optimize(design: Design, out_dir, stages=None, iterations: int | None = None
                       f"{r['seconds']:.0f} s)")
     header.append("Evaluate with: lfsim analyze THIS_FILE --out DIR --stride 1,1")
     raw = dict(current.raw)
-    raw["name"] = design.name if "optimized" in design.name.lower() else f"{design.name} (optimized)"
+    raw["name"] = optimized_name(design.name)
     write_design(path, raw, header)
     doc["optimized_design"] = path.name
     plot_history(doc, out / "merit_history.png")
