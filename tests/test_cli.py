@@ -55,6 +55,47 @@ def test_first_order_json(scenes, capsys):
     assert abs(d["entrance_pupil_diameter"] - 10.0) < 1e-12
 
 
+def test_layout_of_an_ini_design_draws_its_sub_systems(scenes, tmp_path, capsys):
+    """An InI design's layout: the InI first order of every CDP state and the package
+    (what `lfsim ini` and `analyze` report), no conventional focal lengths or spots; its
+    rays are aimed sub-system rays, which end where :func:`trace_rays` puts them on the
+    viewing window, and the EI centres' chief rays of the ideal design all pass through the
+    window's centre (Eq. 2)."""
+    import lfsim
+    from lfsim.analysis.layout import ini_ray_sets
+    from lfsim.ini.model import IniModel
+    from lfsim.ini.package import package
+    from lfsim.ini.subsystems import sample, trace_rays
+
+    out = tmp_path / "lay"
+    assert main(["layout", str(scenes / "ini_ideal.toml"), "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert sorted(p.name for p in out.iterdir()) == ["layout.png", "summary.json"]
+    s = json.loads((out / "summary.json").read_text())
+    model = IniModel(lfsim.load(scenes / "ini_ideal.toml"))
+    assert s["ini"]["lenslets"] == [17, 9] and s["ini"]["display_gap_mm"] == pytest.approx(4.5, rel=1e-12)
+    for k, D in enumerate(model.depths):
+        fo = model.state(k).as_dict()
+        assert s["ini"]["first_order"][f"{D:g}"]["fov_deg"] == pytest.approx(fo["fov_deg"], rel=1e-12)
+        assert f"CDP {D:g} D: FOV {fo['fov_deg'][0]:.1f} x {fo['fov_deg'][1]:.1f} deg" in text
+    assert s["package"]["track_mm"] == pytest.approx(package(model)["track_mm"], rel=1e-12)
+    assert "EFL" not in text and "package: track" in text
+    sets = ini_ray_sets(model, 1)
+    assert [label for label, _, _ in sets] == ["(9, 1)", "(9, 5)", "(9, 9)"]
+    R, o = model.tracer.frames_numpy()[model.spec.viewing_window]
+    subs = sample(model, lenslets=[(8, 0), (8, 4), (8, 8)], depths=[1], fields=[[0.0, 0.0], [0.0, 0.9], [0.0, -0.9]])
+    for i, (_, pts, ok) in enumerate(sets):
+        assert ok.all() and pts.shape == (len(model.system.surfaces) + 1, 9, 3)
+        np.testing.assert_allclose(pts[0, :, :2], np.repeat(subs.display[i], 3, axis=0), atol=1e-12)
+        rho = np.tile([[0.0, 0.0], [0.0, 1.0], [0.0, -1.0]], (3, 1))
+        pos, _, _, status, _ = trace_rays(model, np.repeat(subs.display[i], 3, axis=0), subs.m[i], subs.n[i], rho, 1)
+        assert np.all(status == 0)
+        local = (pts[-1] - o) @ R  # the window frame
+        np.testing.assert_allclose(local[:, :2], pos, atol=1e-9)
+        np.testing.assert_allclose(local[:, 2], 0.0, atol=1e-9)
+        np.testing.assert_allclose(pos[0], [0.0, 0.0], atol=1e-9)  # EI centre, chief ray: the window centre
+
+
 def test_layout_writes_pictures_and_summary(scenes, tmp_path, capsys):
     out = tmp_path / "lay"
     assert main(["layout", str(scenes / "cooke_triplet.toml"), "--out", str(out)]) == 0

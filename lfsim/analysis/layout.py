@@ -59,11 +59,27 @@ def spot_statistics(design, fo, rings: int = 8, wavelength_nm=None):
     return rows, spots
 
 
-def plot_layout(design, fo, path, rays_per_field: int = 7):
-    """Draw the y-z section: surface profiles and a tangential fan per field."""
+def plot_layout(design, fo, path, rays_per_field: int = 7, ray_sets=None, legend_title: str = "field",
+                display=None):
+    """Draw the y-z section: surface profiles and a tangential fan per field.
+
+    ``ray_sets``: instead of the fans, ``[(label, points (L, N, 3), ok (L, N))]`` drawn one
+    colour per set (an InI design's sub-systems: :func:`ini_ray_sets`); ``display``:
+    ``((y_min, y_max), z)``, a display drawn as a bar in the global y-z plane. A lenslet
+    array's surfaces are drawn cell by cell along y."""
     plt = _figure()
     tracer = design.tracer()
     frames = tracer.frames_numpy()
+    if ray_sets is None:
+        ray_sets = []
+        pupil = pupil_grid(rays_per_field, "fan_y")
+        for f in design.system.fields:
+            o, d = field_rays(design.system, fo, f, pupil)
+            r = design.trace(o, d, record=True)
+            pts = np.concatenate([o[None], r.path], axis=0)
+            last = np.where(r.status == 0, len(r.path), r.failed_at)  # hits kept before a failure
+            ok = np.arange(len(pts))[:, None] <= last[None, :]
+            ray_sets.append((f"{f:g}{'°' if design.system.field_type == 'angle' else ' mm'}", pts, ok))
     fig, ax = plt.subplots(figsize=(10, 4.5))
     # Glass elements drawn as built (lfsim.optics.solids.element_section): both faces across
     # the rim about the element's axis, joined by the edge, so that a decentred, tilted or
@@ -84,36 +100,44 @@ def plot_layout(design, fo, path, rays_per_field: int = 7):
             continue
         R, o = frames[i]
         ap = s.aperture
+        hits = np.concatenate([pts[i + 1, ok[i + 1]] for _, pts, ok in ray_sets if i + 1 < len(pts)] or
+                              [np.zeros((0, 3))])
         if ap is not None:  # the aperture's extent along local y
             half = ap.radius if ap.kind == "circular" else ap.half_width[1]
             lo, hi = ap.decenter[1] - half, ap.decenter[1] + half
+        elif len(hits):  # no aperture (an ideal lens, a dummy plane): where the drawn rays cross it
+            y_loc = (hits - o) @ R[:, 1]
+            pad = 0.05 * max(float(np.ptp(y_loc)), 1.0)
+            lo, hi = float(np.min(y_loc)) - pad, float(np.max(y_loc)) + pad
         elif i < len(design.surfaces) - 1:
             lo, hi = -0.6 * fo.entrance_pupil_diameter, 0.6 * fo.entrance_pupil_diameter
         else:
             continue
-        y = np.linspace(lo, hi, 101)
-        z = tracer.sag_numpy(i, np.zeros_like(y), y)
-        pts = np.stack([np.zeros_like(y), y, z], axis=1) @ R.T + o
         style = dict(color="0.2", lw=1.2) if s.interaction != "none" else dict(color="0.5", lw=0.8, ls="--")
         if s.interaction == "reflect":
             style = dict(color="tab:purple", lw=1.6)
-        ax.plot(pts[:, 2], pts[:, 1], **style)
+        arr = design.system.arrays.get(s.array) if s.array is not None else None
+        # A lenslet array: every cell of the section's column, each lenslet about its own vertex.
+        cells = ([arr.center[1] + (n - (arr.n - 1) / 2) * arr.pitch[1] for n in range(arr.n)] if arr else [0.0])
+        for yc in cells:
+            y = np.linspace(max(lo, -arr.pitch[1] / 2) if arr else lo, min(hi, arr.pitch[1] / 2) if arr else hi, 101)
+            z = tracer.sag_numpy(i, np.zeros_like(y), y)
+            pts = np.stack([np.zeros_like(y), y + yc, z], axis=1) @ R.T + o
+            ax.plot(pts[:, 2], pts[:, 1], **style)
+    if display is not None:  # the display's active area, y extent at its plane z
+        (y0, y1), zd = display
+        ax.plot([zd, zd], [y0, y1], color="k", lw=3, solid_capstyle="butt")
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    pupil = pupil_grid(rays_per_field, "fan_y")
-    for k, f in enumerate(design.system.fields):
-        o, d = field_rays(design.system, fo, f, pupil)
-        r = design.trace(o, d, record=True)
-        for j in range(len(o)):
-            last = len(r.path) if r.status[j] == 0 else r.failed_at[j]
-            zs = np.concatenate([[o[j, 2]], r.path[:last, j, 2]])
-            ys = np.concatenate([[o[j, 1]], r.path[:last, j, 1]])
-            ax.plot(zs, ys, color=colors[k % len(colors)], lw=0.6,
-                    label=f"{f:g}{'°' if design.system.field_type == 'angle' else ' mm'}" if j == 0 else None)
+    for k, (label, pts, ok) in enumerate(ray_sets):
+        for j in range(pts.shape[1]):
+            keep = ok[:, j]
+            ax.plot(pts[keep, j, 2], pts[keep, j, 1], color=colors[k % len(colors)], lw=0.6,
+                    label=label if j == 0 else None)
     ax.set_aspect("equal")
     ax.set_xlabel("z (mm)")
     ax.set_ylabel("y (mm)")
     ax.set_title(f"{design.name}: layout (y-z section)")
-    ax.legend(title="field", fontsize=8, loc="best")
+    ax.legend(title=legend_title, fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     ax.grid(alpha=0.3)
     save_figure(fig, path, dpi=130, bbox_inches="tight")
     plt.close(fig)
@@ -168,11 +192,38 @@ def plot_spots(design, rows, spots, path, airy_um: float | None = None):
     plt.close(fig)
 
 
+def ini_ray_sets(model, k: int):
+    """An InI design's rays for :func:`plot_layout`: the top, middle and bottom lenslets of the
+    middle column, each with the chief and ±y marginal rays (stop edge midpoints) of its EI's
+    centre and of two points ±0.45 of the EI's height off it, in CDP state ``k``."""
+    from ..ini.subsystems import ray_paths, sample
+
+    M, N = model.arr.m, model.arr.n
+    lenslets = list(dict.fromkeys([(M // 2, 0), (M // 2, N // 2), (M // 2, N - 1)]))
+    subs = sample(model, lenslets=lenslets, depths=[k], fields=[[0.0, 0.0], [0.0, 0.9], [0.0, -0.9]])
+    rho = np.array([[0.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
+    sets = []
+    for i in range(len(subs)):
+        s = np.repeat(subs.display[i], len(rho), axis=0)
+        r = np.tile(rho, (subs.display.shape[1], 1))
+        pts, ok = ray_paths(model, s, subs.m[i], subs.n[i], r, k)
+        sets.append((f"({subs.m[i] + 1}, {subs.n[i] + 1})", pts, ok))
+    return sets
+
+
 def layout_report(design, out_dir) -> dict:
     """Write ``layout.png``, ``spots.png`` and ``summary.json`` into ``out_dir``
-    (a folder replaced as a whole on success: see :func:`lfsim.fileio.atomic_dir`)."""
+    (a folder replaced as a whole on success: see :func:`lfsim.fileio.atomic_dir`).
+
+    An InI design (an ``[ini]`` section) is drawn with the rays of three lenslets' sub-systems
+    at its middle CDP state (:func:`ini_ray_sets`), and its summary holds the InI first order
+    of every CDP state and the package (``ini``, ``package``) instead of a conventional lens's
+    focal lengths and spots, which a lenslet array does not have: ``spots.png`` is not written
+    (per-lenslet spots and MTFs: ``lfsim analyze``)."""
     from ..fileio import atomic_dir
 
+    if design.ini is not None:
+        return _ini_layout_report(design, out_dir)
     fo = design.first_order()
     rows, spots = spot_statistics(design, fo)
     by_wl = {}
@@ -195,5 +246,32 @@ def layout_report(design, out_dir) -> dict:
     with atomic_dir(out_dir, "summary.json") as out:
         plot_layout(design, fo, out / "layout.png")
         plot_spots(design, rows, by_wl, out / "spots.png", airy_um)
+        write_json(out / "summary.json", summary)
+    return summary
+
+
+def _ini_layout_report(design, out_dir) -> dict:
+    from ..fileio import atomic_dir
+    from ..ini.model import IniModel
+    from ..ini.package import package
+
+    model = IniModel(design)
+    k = len(model.depths) // 2
+    fo = design.first_order()
+    summary = {
+        "design": design.name,
+        "file": design.path,
+        "wavelength_nm": design.system.primary_wavelength_nm,
+        "ini": {"lenslets": [model.arr.m, model.arr.n], "display_gap_mm": float(model.g),
+                "drawn_cdp_diopters": model.depths[k],
+                "first_order": {f"{D:g}": model.state(j).as_dict() for j, D in enumerate(model.depths)}},
+        "package": package(model),
+        "images": {"layout": "layout.png"},
+    }
+    sets = ini_ray_sets(model, k)
+    with atomic_dir(out_dir, "summary.json") as out:
+        half = 0.5 * model.arr.n * model.state(k).p_ei[1]
+        plot_layout(design, fo, out / "layout.png", ray_sets=sets, legend_title=f"lenslet, CDP {model.depths[k]:g} D",
+                    display=((-half, half), -model.g))
         write_json(out / "summary.json", summary)
     return summary

@@ -140,6 +140,17 @@ def cmd_layout(args) -> int:
     summary = layout_report(design, args.out)
     if args.json:
         print(_dump(summary))
+    elif "ini" in summary:
+        from .ini import _first_order_line, _package_line
+
+        ini = summary["ini"]
+        print(f"{design.name}: InI design, {ini['lenslets'][0]} x {ini['lenslets'][1]} lenslets, display gap "
+              f"{ini['display_gap_mm']:.3f} mm; drawn at CDP {ini['drawn_cdp_diopters']:g} D")
+        for D, fo in ini["first_order"].items():
+            print(f"  CDP {D} D:" + _first_order_line(fo)[1:])
+        print("  " + _package_line(summary["package"]))
+        print("  (per-lenslet spots, MTF, GD and PA: lfsim analyze)")
+        print(f"wrote {args.out}/layout.png, summary.json")
     else:
         fo = summary["first_order"]
         print(f"{design.name}: EFL {_fmt(fo['efl'], '.6f', 'mm')}, BFL {_fmt(fo['bfl'], '.6f', 'mm')}, "

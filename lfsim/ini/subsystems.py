@@ -222,6 +222,33 @@ def trace_rays(model: IniModel, s, m, n, rho, k, iterations: int = 30):
     return pl, dl, opl, status, float(worst[0])
 
 
+def ray_paths(model: IniModel, s, m, n, rho, k, iterations: int = 30):
+    """Aimed rays' points from the display to the viewing window, global frame, for drawing.
+
+    The rays of :func:`trace_rays` (display point ``s``, stop point ``rho`` of lenslet
+    (``m``, ``n``), CDP state ``k``). Returns ``(points (L + 1, N, 3), ok (L + 1, N))``:
+    the display point and the hit on every surface up to the viewing window (L surfaces);
+    ``ok`` is False from the surface where a ray failed on.
+    """
+    sp = model.spec
+    tr, P, _ = _stack([model])
+    T = tr.T
+    s = np.asarray(s, dtype=np.float64).reshape(-1, 2)
+    s_r, m_r, n_r, k_r, t, _ = _aim_many([model], np.zeros(len(s), dtype=np.int64), s, m, n, rho, k, iterations,
+                                         (tr, P, len(model.depths)))
+    o = np.column_stack([s_r, np.full(len(s_r), -model.g)])
+    d = np.column_stack([t, np.ones(len(t))])
+    with dr.suspend_grad():
+        block = from_numpy(T.UInt32, k_r.astype(np.uint32))
+        lens = from_numpy(T.Int32, m_r, n_r)
+        out = tr.trace(P, tr.rays(o, d), block=block, lenslet=lens, record=True, first=0, last=sp.viewing_window)
+        got = to_numpy(out.failed_at, *[p for p, _ in out.path])
+    failed_at, hits = got[0].astype(np.int64), got[1:]
+    points = np.stack([o] + list(hits))  # (L + 1, N, 3)
+    idx = np.arange(len(hits) + 1)[:, None] - 1  # surface index of each row (−1: the display)
+    ok = (failed_at[None, :] < 0) | (idx < failed_at[None, :])
+    return points, ok
+
 def _stack(models: list[IniModel]):
     """The packed parameters of ``models`` (block ``u·states + k``) and their common tracer."""
     tr = models[0].tracer
