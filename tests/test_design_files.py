@@ -169,6 +169,86 @@ def test_glass_whose_faces_cross_is_refused(tmp_path, thickness):
     assert lfsim.load(p).system.surfaces[1].virtual
 
 
+def _air_spaced(gap: float, second: str = "lens", image_gap: float = 40.0) -> str:
+    """Two N-BK7 menisci (faces R 20 / 30 mm, then 40 / 60 mm, all concave toward +z,
+    semi-diameter 6) ``gap`` apart in air; ``second = "ideal"``: an ideal lens instead of the
+    second meniscus."""
+    lens_b = ("""[[surfaces]]
+name = "C"
+radius = 40.0
+thickness = 2.0
+material = "N-BK7"
+semi_diameter = 6.0
+[[surfaces]]
+name = "D"
+radius = 60.0
+thickness = {image_gap}
+semi_diameter = 6.0""" if second == "lens" else """[[surfaces]]
+name = "C"
+type = "paraxial"
+focal_length = 50.0
+thickness = {image_gap}""").format(image_gap=image_gap)
+    return f"""
+[system]
+aperture = {{ type = "epd", value = 10.0 }}
+[[surfaces]]
+name = "A"
+radius = 20.0
+thickness = 3.0
+material = "N-BK7"
+semi_diameter = 6.0
+[[surfaces]]
+name = "B"
+radius = 30.0
+thickness = {gap}
+semi_diameter = 6.0
+{lens_b}
+[[surfaces]]
+name = "image"
+dummy = true
+"""
+
+
+def test_air_gap_whose_faces_cross_is_refused(tmp_path, capsys):
+    """An air gap is checked like glass: B (R 30) and C (R 40), both concave toward +z, close
+    in by sag_B(6) − sag_C(6) at the rim, so a gap below that crosses inside the clear
+    apertures (refused in one line naming B's thickness and "air gap") and one above it does
+    not; an ideal lens (a plane) behind B is refused at a negative gap, where the tracer would
+    let light run backwards to it; the image surface may lie behind the last face (a virtual
+    image), and ``virtual = true`` accepts a deliberate crossing."""
+    def sag(R, r):
+        return R - math.sqrt(R * R - r * r)
+
+    closing = sag(30.0, 6.0) - sag(40.0, 6.0)
+    p = tmp_path / "x.toml"
+    p.write_text(_air_spaced(closing - 0.01))
+    with pytest.raises(DesignError) as e:
+        lfsim.load(p)
+    msg = str(e.value)
+    assert e.value.key == "surfaces[1].thickness" and e.value.surface == "B" and "\n" not in msg
+    assert "'B' and 'C' cross inside their clear apertures: the air gap between them is -0.01 mm" in msg, msg
+    assert "radial height 6 mm" in msg
+    p.write_text(_air_spaced(closing + 0.01))
+    lfsim.load(p)
+    p.write_text(_air_spaced(-1.0, "ideal"))
+    with pytest.raises(DesignError) as e:  # the plane meets B's rim, sag_B(6) nearer still
+        lfsim.load(p)
+    assert f"'B' and 'C' cross inside their clear apertures: the air gap between them is {-1.0 - sag(30.0, 6.0):.6g}" \
+        in str(e.value)
+    p.write_text(_air_spaced(1.0, "ideal", image_gap=-30.0))  # a virtual image: allowed
+    lfsim.load(p)
+    p.write_text(_air_spaced(-1.0, "ideal").replace('name = "C"', 'name = "C"\nvirtual = true'))
+    lfsim.load(p)
+    # From the command line (--set), the same line and exit status 2, nothing written.
+    good = tmp_path / "good.toml"
+    good.write_text(_air_spaced(5.0))
+    out = tmp_path / "lay"
+    assert main(["layout", str(good), "--set", "B.thickness=-2", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "surfaces[1].thickness = -2.0 (surface 'B')" in err and "air gap" in err, err
+    assert not out.exists()
+
+
 def test_content_scene_given_as_a_design_is_named_as_such(scenes):
     import lfsim
 

@@ -469,12 +469,14 @@ def _system_from_dict(data: dict, file: str) -> System:
 
 
 def _check_crossings(ctx, system: System) -> None:
-    """Refuse a glass element whose surfaces cross inside their clear apertures."""
+    """Refuse neighbouring faces (a glass element, or an air gap) that cross inside their clear
+    apertures."""
     from ..optics.solids import crossings
 
-    for i, j, r, t in crossings(system)[:1]:
+    for i, j, r, t, glass in crossings(system)[:1]:
         a, b = system.surfaces[i], system.surfaces[j]
+        what = "the glass between them is" if glass else "the air gap between them is"
         raise ctx.err(f"surfaces[{i}].thickness", a.thickness,
-                      f"surfaces {a.name!r} and {b.name!r} cross inside their clear apertures: the glass "
-                      f"between them is {t:.6g} mm thick at radial height {r:.4g} mm (set virtual = true on "
+                      f"surfaces {a.name!r} and {b.name!r} cross inside their clear apertures: {what} "
+                      f"{t:.6g} mm thick at radial height {r:.4g} mm (set virtual = true on "
                       f"one of them if this geometry is deliberate)")

@@ -140,7 +140,7 @@ def apply_overrides(raw: dict, overrides: dict[str, float], file: str = "<dict>"
         try:
             out = apply_values(raw, table_values)
         except DesignError as e:  # validated in memory: name the file the values came from
-            raise DesignError(file, e.key, e.value, e.allowed) from None
+            raise DesignError(file, e.key, e.value, e.allowed, surface=e.surface) from None
         except ValueError as e:  # unknown / unwritable name or conflicting values
             k = next(iter(table_values))
             raise DesignError(file, k, table_values[k], str(e)) from None

@@ -180,11 +180,16 @@ def _pair_offsets(system: System, i: int) -> tuple[np.ndarray, np.ndarray] | Non
     return off_a, off_b
 
 
-def crossings(system: System, points: int = 17) -> list[tuple[int, int, float, float]]:
-    """Glass elements whose two surfaces cross: ``(i, i + 1, radial height mm, thickness mm)``.
+#: Surface interactions that are optical faces (a dummy plane, "none", is a reference that may
+#: lie anywhere; a coordinate break has no face).
+_FACES = ("refract", "reflect", "tir", "paraxial")
+
+
+def crossings(system: System, points: int = 17) -> list[tuple[int, int, float, float, bool]]:
+    """Neighbouring faces that cross: ``(i, i + 1, radial height mm, thickness mm, glass)``.
 
     For each refracting surface ``i`` into a medium denser than air (index >
-    1.0001 at the primary wavelength) followed on its own axis by surface
+    1.0001 at the primary wavelength: ``glass``) followed on its own axis by surface
     ``i + 1``, the glass thickness ``t(x, y) = d_i + z_{i+1}(x, y) − z_i(x, y)``
     (the tracer's sag model, :func:`~lfsim.optics.surfaces.sag`) is sampled on
     a ``points × points`` grid over the clear apertures both surfaces share (a
@@ -196,6 +201,13 @@ def crossings(system: System, points: int = 17) -> list[tuple[int, int, float, f
     decentred surface is sampled where it sits: its sag about its own vertex,
     over its aperture moved with it. Pairs with a surface marked ``virtual``,
     and pairs not on one axis (tilted or globally placed), are not checked.
+
+    The same holds for the air between two optical faces (refracting, reflecting or
+    ideal lenses; not dummy planes): a negative air gap puts the next face behind the
+    light, which the tracer lets through only at ideal lenses and dummy planes (they
+    are reached along the ray's line either way), so such a design would trace as if
+    light ran backwards. The image surface may lie behind the last face (a virtual
+    image) and is not checked against it.
     """
     from .vector import DesignVector
 
@@ -207,10 +219,11 @@ def crossings(system: System, points: int = 17) -> list[tuple[int, int, float, f
     for i in range(len(surfs) - 1):
         a, b = surfs[i], surfs[i + 1]
         flips += a.interaction in ("reflect", "tir")
-        if a.interaction != "refract" or b.interaction == "break" or a.virtual or b.virtual:
+        if a.interaction not in _FACES or b.interaction not in _FACES or a.virtual or b.virtual:
             continue
         offsets = _pair_offsets(system, i)
-        if a.material.index(system.primary_wavelength_nm) <= 1.0001 or offsets is None:
+        glass = a.interaction == "refract" and a.material.index(system.primary_wavelength_nm) > 1.0001
+        if offsets is None or (not glass and i + 1 == len(surfs) - 1):
             continue
         off_a, off_b = offsets
         if (a.array is None) != (b.array is None) or a.array != b.array:
@@ -239,7 +252,7 @@ def crossings(system: System, points: int = 17) -> list[tuple[int, int, float, f
             if worst is None or t < worst[1]:
                 worst = (math.hypot(x, y), t)
         if worst is not None and worst[1] < -CROSSING_TOL * max(1.0, abs(d)):
-            out.append((i, i + 1, worst[0], worst[1]))
+            out.append((i, i + 1, worst[0], worst[1], glass))
     return out
 
 
