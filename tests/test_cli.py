@@ -94,6 +94,15 @@ def test_layout_of_an_ini_design_draws_its_sub_systems(scenes, tmp_path, capsys)
         np.testing.assert_allclose(local[:, :2], pos, atol=1e-9)
         np.testing.assert_allclose(local[:, 2], 0.0, atol=1e-9)
         np.testing.assert_allclose(pos[0], [0.0, 0.0], atol=1e-9)  # EI centre, chief ray: the window centre
+    assert "paraxial CDP" not in text  # the ideal design's CDPs are stigmatic
+    # The wearable's prism makes its paraxial CDPs astigmatic: each state shows its x and y.
+    assert main(["layout", str(scenes / "ini_wearable_optimized.toml"), "--out", str(tmp_path / "w")]) == 0
+    text = capsys.readouterr().out
+    wear = IniModel(lfsim.load(scenes / "ini_wearable_optimized.toml"))
+    for k, D in enumerate(wear.depths):
+        fo = wear.state(k).as_dict()
+        assert f"CDP {D:g} D: FOV" in text and \
+            f"paraxial CDP x {fo['cdp_diopters_x']:.2f} y {fo['cdp_diopters_y']:.2f} D" in text
 
 
 def test_layout_writes_pictures_and_summary(scenes, tmp_path, capsys):

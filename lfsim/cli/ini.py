@@ -138,11 +138,16 @@ def cmd_analyze(args) -> int:
 
 def _first_order_line(fo: dict | None) -> str:
     """``, FOV 29.5 x 16.6 deg, pixel 1.91 x 1.83'``: the state's first order (Eqs. 8-10), x and y,
-    for the console."""
+    for the console; where the paraxial CDP is astigmatic (x or y more than 0.005 D from the
+    state's depth, which the tunable lens sets for their mean), both."""
     if not fo:
         return ""
     (fx, fy), (px, py) = fo["fov_deg"], fo["pixel_arcmin"]
-    return f", FOV {fx:.1f} x {fy:.1f} deg, pixel {px:.2f} x {py:.2f}'"
+    line = f", FOV {fx:.1f} x {fy:.1f} deg, pixel {px:.2f} x {py:.2f}'"
+    cx, cy, D = fo.get("cdp_diopters_x"), fo.get("cdp_diopters_y"), fo.get("diopters")
+    if None not in (cx, cy, D) and max(abs(cx - D), abs(cy - D)) > 0.005:  # an astigmatic CDP
+        line += f", paraxial CDP x {cx:.2f} y {cy:.2f} D"
+    return line
 
 
 def _window_line(w: dict | None) -> str:
