@@ -88,7 +88,9 @@ def test_cli_optimizes_the_plain_lens_example(scenes, tmp_path, capsys):
     opt = lfsim.load(out / doc["optimized_design"])
     assert opt.first_order().efl == pytest.approx(end["efl_mm"], rel=1e-6)  # the summary keeps 6 decimals
     assert opt.name == "Cooke triplet 50 mm f/5 (optimized)"  # the start's "(optimization start)" replaced
-    assert (out / doc["optimized_design"]).read_text().startswith("# Cooke triplet 50 mm f/5: optimized from ")
+    text = (out / doc["optimized_design"]).read_text()
+    assert text.startswith("# Cooke triplet 50 mm f/5: optimized from ")
+    assert "# Evaluate with: lfsim layout THIS_FILE --out DIR" in text  # no [ini]: analyze would refuse it
     ba = doc["before_after"]["rms_spot_um"]
     assert all(a < 0.2 * b for a, b in zip(ba["after"], ba["before"]))
     assert (out / "before_after.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

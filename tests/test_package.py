@@ -395,7 +395,7 @@ def test_analyze_prints_the_package_and_first_order(tmp_path, capsys):
         assert fov, row
         assert [float(v) for v in fov.groups()[:2]] == [round(v, 1) for v in fo["fov_deg"]]
         assert [float(v) for v in fov.groups()[2:]] == [round(v, 2) for v in fo["pixel_arcmin"]]
-        w = re.search(r"EI-centre chief rays meet the axis at x ([-+\d.]+) y ([-+\d.]+) mm", row)
+        w = re.search(r"EI-centre chief rays meet the axis ([-+\d.]+) \(x\) / ([-+\d.]+) \(y\) mm from the window", row)
         assert w, row
         assert [float(v) for v in w.groups()] == [round(v, 2) for v in b["viewing_window_real"]["offset_mm"]]
     shape = re.search(r"footprint shape alone .*: max ([\d.]+), mean ([\d.]+)", text)

@@ -347,6 +347,7 @@ def summarize(res: dict, package: bool = True) -> dict:
             "gd_deg": _f(res["gd"][i]) if gd_ok[i] else None,
             "pa_max": _f(pa_sub[i]) if sub_ok[i] else None,
             "pa_mean": _masked(np.mean, res["pa"][i], pa_ok[i]),
+            "pa_shape_max": _masked(np.max, res["pa_shape"][i], pa_ok[i]),
             "contrast_nyquist": _f(c_min[i]),
             "contrast_nyquist_fields": [_f(v) for v in res["contrast"][i]],
             "contrast_nyquist_worst_field": [_f(v) for v in refined["field"][i]] if refined else None,

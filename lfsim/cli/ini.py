@@ -151,12 +151,13 @@ def _first_order_line(fo: dict | None) -> str:
 
 
 def _window_line(w: dict | None) -> str:
-    """``, EI-centre chief rays meet the axis at x -4.36 y -7.37 mm``: where the real viewing
-    window lies relative to the design's (+ toward the eye), for the console."""
+    """``, EI-centre chief rays meet the axis -4.36 (x) / -7.37 (y) mm from the window (+ toward
+    the eye)``: where the real viewing window lies along the line of sight relative to the
+    design's, per section, for the console."""
     if not w:
         return ""
-    zs = [f"{a} {_num(None if z is None else round(z, 2) + 0.0, '+.2f')}" for a, z in zip("xy", w["offset_mm"])]
-    return f", EI-centre chief rays meet the axis at {' '.join(zs)} mm"
+    zs = [f"{_num(None if z is None else round(z, 2) + 0.0, '+.2f')} ({a})" for a, z in zip("xy", w["offset_mm"])]
+    return f", EI-centre chief rays meet the axis {' / '.join(zs)} mm from the window (+ toward the eye)"
 
 
 def _package_line(p: dict) -> str:
@@ -172,8 +173,11 @@ def _package_line(p: dict) -> str:
     if p.get("tunable_footprint_mm") is not None:
         parts.append(f"tunable lens footprint {p['tunable_footprint_mm']:.2f} of "
                      f"{_num(p.get('tunable_clear_aperture_mm'), '.1f')} mm")
-    parts.append(f"glass edge >= {_floor3(p.get('min_edge_thickness_mm'))} mm, "
-                 f"centre >= {_floor3(p.get('min_center_thickness_mm'))} mm")
+    if p.get("min_edge_thickness_mm") is None and p.get("min_center_thickness_mm") is None:
+        parts.append("no glass elements")
+    else:
+        parts.append(f"glass edge >= {_floor3(p.get('min_edge_thickness_mm'))} mm, "
+                     f"centre >= {_floor3(p.get('min_center_thickness_mm'))} mm")
     if p.get("rays_failed"):
         parts.append(f"{p['rays_failed']} of {p['rays_traced']} package rays failed")
     return ", ".join(parts)

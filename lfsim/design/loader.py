@@ -478,5 +478,5 @@ def _check_crossings(ctx, system: System) -> None:
         what = "the glass between them is" if glass else "the air gap between them is"
         raise ctx.err(f"surfaces[{i}].thickness", a.thickness,
                       f"surfaces {a.name!r} and {b.name!r} cross inside their clear apertures: {what} "
-                      f"{t:.6g} mm thick at radial height {r:.4g} mm (set virtual = true on "
+                      f"{t:.6g} mm thick at radial height {round(r, 3) + 0.0:.4g} mm (set virtual = true on "
                       f"one of them if this geometry is deliberate)")

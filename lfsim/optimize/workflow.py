@@ -285,7 +285,8 @@ def optimize(design: Design, out_dir, stages=None, iterations: int | None = None
                       f"({r['iterations']} of at most {r['max_iterations']} iterations, {r['status']}, "
                       f"stride {r['stride'][0]}x{r['stride'][1]}, {len(r['variables'])} variables, "
                       f"{r['seconds']:.0f} s)")
-    header.append("Evaluate with: lfsim analyze THIS_FILE --out DIR --stride 1,1")
+    header.append("Evaluate with: lfsim analyze THIS_FILE --out DIR --stride 1,1" if design.ini is not None
+                  else "Evaluate with: lfsim layout THIS_FILE --out DIR")
     raw = dict(current.raw)
     raw["name"] = optimized_name(design.name)
     write_design(path, raw, header)
