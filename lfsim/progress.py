@@ -31,6 +31,19 @@ LOG_CLOSE_AFTER = 2.0
 #: Seconds without progress output before the heartbeat speaks, then between its lines.
 HEARTBEAT_AFTER = 2.0
 _last = [time.monotonic()]  # the last time a bar moved or printed
+_phase: list[str | None] = [None]  # what the command is doing now, for the heartbeat
+
+
+@contextmanager
+def phase(text: str):
+    """Name the step under way: the heartbeat's lines say it (``lfsim analyze: searching the
+    worst contrast, 20 s elapsed``) instead of "working"."""
+    prev = _phase[0]
+    _phase[0] = text
+    try:
+        yield
+    finally:
+        _phase[0] = prev
 
 
 def touch() -> None:
@@ -101,7 +114,8 @@ def heartbeat(what: str, after: float | None = None, interval: float | None = No
     """Around a command: a line whenever ``after`` s (then ``interval`` s) pass with no progress output.
 
     The line says "compiling kernels for this design" while Dr.Jit writes new
-    kernels to its cache, else that ``what`` is still working; at the end, a
+    kernels to its cache, else that ``what`` is still working (on the :func:`phase`
+    named, if any); at the end, a
     run that compiled kernels for 2 s or more says how many it compiled.
     """
     if not enabled:
@@ -131,7 +145,7 @@ def heartbeat(what: str, after: float | None = None, interval: float | None = No
                 _emit(f"compiling kernels for this design ({counter.new} so far; cached for later runs), "
                       f"{el:.0f} s elapsed")
             else:
-                _emit(f"{what}: working, {el:.0f} s elapsed")
+                _emit(f"{what}: {_phase[0] or 'working'}, {el:.0f} s elapsed")
             spoke[0] = True
             wait = interval
 

@@ -41,3 +41,16 @@ def test_heartbeat_reports_other_long_work_and_stays_quiet_when_bars_move(tmp_pa
     with progress.heartbeat("quick", after=0.3):  # a short command prints nothing
         pass
     assert _lines(capsys) == []
+
+
+def test_heartbeat_names_the_phase_under_way(tmp_path, monkeypatch, capsys):
+    """A named step replaces "working" while it runs, and the name goes with it."""
+    monkeypatch.setenv("HOME", str(tmp_path))
+    with progress.heartbeat("lfsim analyze", after=0.3, interval=0.3):
+        with progress.phase("searching each sub-system's worst contrast"):
+            time.sleep(0.8)
+        progress.touch()
+        time.sleep(0.8)
+    lines = _lines(capsys)
+    named = [line for line in lines if line.startswith("lfsim analyze: searching each sub-system's worst contrast, ")]
+    assert named and lines[-1].startswith("lfsim analyze: working, "), lines

@@ -18,6 +18,7 @@ from ..ini.model import IniModel
 from ..ini.package import package as ini_package
 from ..ini.subsystems import Bundle, Subsystems, display_points, sample, trace, trace_many
 from ..metrics import distortion, footprint, mtf, pupil, spot
+from ..progress import phase
 
 CPD_TO_CPR = 180.0 / math.pi
 
@@ -146,7 +147,8 @@ def evaluate(model: IniModel, subs=None, progress: bool = False, mtf_freqs_cpd=N
     rms, cen, off = spot.rms_spot(r[:, :, sl["gl2"]], sets.weights["gl2"], ok[:, :, sl["gl2"]])
     rms_n, _, _ = spot.rms_spot(r[:, :, sl["gl"]], sets.weights["gl"], ok[:, :, sl["gl"]])
     geo = mtf.geometric_mtf(off, sets.weights["gl2"], ok[:, :, sl["gl2"]], freqs_cpd * CPD_TO_CPR)
-    opd, dif = _diffraction(model, bundle, sets, r, cen, D, freqs_cpd)
+    with phase("wavefronts and diffraction MTFs"):
+        opd, dif = _diffraction(model, bundle, sets, r, cen, D, freqs_cpd)
     contrast = np.min(dif[..., i_nyq, :], axis=-1)
     g = sl["mtf"]
     wf_rms = np.sqrt(np.sum(np.where(ok[:, :, g], opd, 0) ** 2, axis=-1)
@@ -158,7 +160,8 @@ def evaluate(model: IniModel, subs=None, progress: bool = False, mtf_freqs_cpd=N
                geo=geo, dif=dif, contrast=contrast, wf_rms=wf_rms, vignetted=vignetted,
                freqs_cpd=freqs_cpd, nyquist_cpd=nyq, i_nyq=i_nyq, t_trace=t_trace)
     levels = spec.refine if refine is None else int(refine)
-    res["refined"] = refine_contrast(model, res, levels, ref) if levels > 0 else None
+    with phase("searching each sub-system's worst contrast"):
+        res["refined"] = refine_contrast(model, res, levels, ref) if levels > 0 else None
     res["t_all"] = time.perf_counter() - t0
     return res
 
@@ -454,21 +457,25 @@ def analyze(design, out_dir=None, stride=None, symmetry=None, depths_diopters=No
     subs = sample(ref, stride=stride, symmetry=symmetry, depths=depths)
     res = evaluate(model, subs, progress=progress, reference=None if ref is model else ref)
     t0 = time.perf_counter()
-    res["lateral_colour"] = lateral_colour(model, subs)
+    with phase("tracing the lateral colour"):
+        res["lateral_colour"] = lateral_colour(model, subs)
     if polychromatic and progress:
         from ..progress import line
 
         line(f"polychromatic contrast: tracing {len(subs)} sub-systems at "
              f"{len(set(model.system.wavelengths_nm)) - 1} more wavelengths")
-    res["polychromatic"] = polychromatic_contrast(res) if polychromatic else None
+    with phase("the polychromatic contrast"):
+        res["polychromatic"] = polychromatic_contrast(res) if polychromatic else None
     res["t_all"] += time.perf_counter() - t0  # the wall time includes colour's extra traces
-    doc = summarize(res)
+    with phase("measuring the package"):
+        doc = summarize(res)
     if ref is not model:
         doc["reference"] = ref.file
     if out_dir is not None:
         with atomic_dir(out_dir, "metrics.json") as out:
             if plots:
-                doc["plots"] = ini_plots.write_all(res, out)
+                with phase("drawing the plots"):
+                    doc["plots"] = ini_plots.write_all(res, out)
             doc["summary"]["wall_s"] = round(res["t_all"], 3)
             write_json(out / "metrics.json", doc)
     return doc
