@@ -110,7 +110,8 @@ def cmd_analyze(args) -> int:
     if s.get("pa_shape_max") is not None:
         print(f"    footprint shape alone (each footprint's own shift removed): max {s['pa_shape_max']:.4f}, "
               f"mean {_num(s.get('pa_shape_mean'), '.4f')}")
-    print(f"  contrast at Nyquist {s['nyquist_cpd']:.2f} cpd: min {_num(s['contrast_nyquist_min'], '.3f')}, "
+    print(f"  contrast at Nyquist {s['nyquist_cpd']:.2f} cpd (the highest state's): "
+          f"min {_low(s['contrast_nyquist_min'])}, "
           f"mean {_num(s['contrast_nyquist_mean'], '.3f')}")
     if s.get("lateral_colour_wavelengths_nm"):
         lo, hi = s["lateral_colour_wavelengths_nm"]
@@ -125,7 +126,7 @@ def cmd_analyze(args) -> int:
               f"{_num(s['contrast_nyquist_poly_min'], '.3f')}, mean {_num(s['contrast_nyquist_poly_mean'], '.3f')}"
               f" ({per_depth} at {' / '.join(doc['by_depth'])} D)")
     for D, b in doc["by_depth"].items():
-        print(f"  CDP {D} D: contrast min {_num(b['contrast_nyquist_min'], '.3f')} "
+        print(f"  CDP {D} D: contrast min {_low(b['contrast_nyquist_min'])} "
               f"mean {_num(b['contrast_nyquist_mean'], '.3f')}, "
               f"RMS spot mean {_num(b['rms_spot_mean_arcmin'], '.3f')}' max {_num(b['rms_spot_max_arcmin'], '.3f')}', "
               f"GD max {_num(b['gd_max_deg'], '.3f')} deg, PA max {_num(b['pa_max'], '.3f')}"
@@ -186,6 +187,12 @@ def _package_line(p: dict) -> str:
 def _floor3(v) -> str:
     """A least value after ">=", rounded down to 1 µm so that the bound printed holds."""
     return "n/a" if v is None else f"{math.floor(v * 1000.0 + 1e-9) / 1000.0:.3f}"
+
+
+def _low(v) -> str:
+    """A least contrast: three decimals, or two significant digits from 0.00005 to 0.01 (a floor
+    of 0.00047 is not 0)."""
+    return _num(v, ".3f" if v is None or not 5e-5 <= abs(v) < 0.00995 else ".2g")
 
 
 def _num(v, fmt: str) -> str:
