@@ -60,13 +60,15 @@ def spot_statistics(design, fo, rings: int = 8, wavelength_nm=None):
 
 
 def plot_layout(design, fo, path, rays_per_field: int = 7, ray_sets=None, legend_title: str = "field",
-                display=None):
+                display=None, labels=None):
     """Draw the y-z section: surface profiles and a tangential fan per field.
 
     ``ray_sets``: instead of the fans, ``[(label, points (L, N, 3), ok (L, N))]`` drawn one
     colour per set (an InI design's sub-systems: :func:`ini_ray_sets`); ``display``:
-    ``((y_min, y_max), z)``, a display drawn as a bar in the global y-z plane. A lenslet
-    array's surfaces are drawn cell by cell along y."""
+    ``((y_min, y_max), z)``, a display drawn as a bar in the global y-z plane; ``labels``:
+    ``{surface index: text}`` written beside those surfaces. A lenslet array's surfaces are
+    drawn cell by cell along y."""
+    labels = labels or {}
     plt = _figure()
     tracer = design.tracer()
     frames = tracer.frames_numpy()
@@ -124,9 +126,15 @@ def plot_layout(design, fo, path, rays_per_field: int = 7, ray_sets=None, legend
             z = tracer.sag_numpy(i, np.zeros_like(y), y)
             pts = np.stack([np.zeros_like(y), y + yc, z], axis=1) @ R.T + o
             ax.plot(pts[:, 2], pts[:, 1], **style)
+        if i in labels:
+            mid = pts[len(pts) // 2]
+            ax.annotate(labels[i], (mid[2], mid[1]), xytext=(-8, 0), textcoords="offset points", fontsize=8,
+                        color="0.3", ha="right", va="center",
+                        bbox=dict(boxstyle="square,pad=0.1", fc="white", ec="none", alpha=0.8))
     if display is not None:  # the display's active area, y extent at its plane z
         (y0, y1), zd = display
         ax.plot([zd, zd], [y0, y1], color="k", lw=3, solid_capstyle="butt")
+        ax.annotate("display", (zd, y1), xytext=(-6, 4), textcoords="offset points", fontsize=8, color="0.3")
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for k, (label, pts, ok) in enumerate(ray_sets):
         for j in range(pts.shape[1]):
@@ -272,6 +280,6 @@ def _ini_layout_report(design, out_dir) -> dict:
     with atomic_dir(out_dir, "summary.json") as out:
         half = 0.5 * model.arr.n * model.state(k).p_ei[1]
         plot_layout(design, fo, out / "layout.png", ray_sets=sets, legend_title=f"lenslet, CDP {model.depths[k]:g} D",
-                    display=((-half, half), -model.g))
+                    display=((-half, half), -model.g), labels={model.spec.viewing_window: "eye (viewing window)"})
         write_json(out / "summary.json", summary)
     return summary
