@@ -320,7 +320,8 @@ def _window_crossing(res: dict, sel: np.ndarray) -> dict | None:
     """Where the sub-systems ``sel``'s EI-centre chief rays (field 0) cross the line of sight,
     relative to the viewing window (:func:`lfsim.metrics.footprint.axis_crossing`; + toward the eye)."""
     b, ch = res["bundle"], res["sets"].slices["chief"]
-    return footprint.axis_crossing(b.pos[sel, 0, ch][:, 0], b.slopes()[sel, 0, ch][:, 0])
+    d = b.dir[sel, 0, ch][:, 0]
+    return footprint.axis_crossing(b.pos[sel, 0, ch][:, 0], d[:, :2] / d[:, 2:3])
 
 
 def summarize(res: dict, package: bool = True) -> dict:

@@ -210,13 +210,12 @@ def ini_ray_sets(model, k: int):
     lenslets = list(dict.fromkeys([(M // 2, 0), (M // 2, N // 2), (M // 2, N - 1)]))
     subs = sample(model, lenslets=lenslets, depths=[k], fields=[[0.0, 0.0], [0.0, 0.9], [0.0, -0.9]])
     rho = np.array([[0.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
-    sets = []
-    for i in range(len(subs)):
-        s = np.repeat(subs.display[i], len(rho), axis=0)
-        r = np.tile(rho, (subs.display.shape[1], 1))
-        pts, ok = ray_paths(model, s, subs.m[i], subs.n[i], r, k)
-        sets.append((f"({subs.m[i] + 1}, {subs.n[i] + 1})", pts, ok))
-    return sets
+    S, F = subs.display.shape[:2]
+    per = F * len(rho)  # rays per sub-system: every field's chief and marginal rays, in one launch
+    pts, ok = ray_paths(model, np.repeat(subs.display.reshape(-1, 2), len(rho), axis=0),
+                        np.repeat(subs.m, per), np.repeat(subs.n, per), np.tile(rho, (S * F, 1)), k)
+    return [(f"({subs.m[i] + 1}, {subs.n[i] + 1})", pts[:, i * per:(i + 1) * per], ok[:, i * per:(i + 1) * per])
+            for i in range(S)]
 
 
 def layout_report(design, out_dir) -> dict:

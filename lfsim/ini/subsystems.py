@@ -222,33 +222,6 @@ def trace_rays(model: IniModel, s, m, n, rho, k, iterations: int = 30):
     return pl, dl, opl, status, float(worst[0])
 
 
-def ray_paths(model: IniModel, s, m, n, rho, k, iterations: int = 30):
-    """Aimed rays' points from the display to the viewing window, global frame, for drawing.
-
-    The rays of :func:`trace_rays` (display point ``s``, stop point ``rho`` of lenslet
-    (``m``, ``n``), CDP state ``k``). Returns ``(points (L + 1, N, 3), ok (L + 1, N))``:
-    the display point and the hit on every surface up to the viewing window (L surfaces);
-    ``ok`` is False from the surface where a ray failed on.
-    """
-    sp = model.spec
-    tr, P, _ = _stack([model])
-    T = tr.T
-    s = np.asarray(s, dtype=np.float64).reshape(-1, 2)
-    s_r, m_r, n_r, k_r, t, _ = _aim_many([model], np.zeros(len(s), dtype=np.int64), s, m, n, rho, k, iterations,
-                                         (tr, P, len(model.depths)))
-    o = np.column_stack([s_r, np.full(len(s_r), -model.g)])
-    d = np.column_stack([t, np.ones(len(t))])
-    with dr.suspend_grad():
-        block = from_numpy(T.UInt32, k_r.astype(np.uint32))
-        lens = from_numpy(T.Int32, m_r, n_r)
-        out = tr.trace(P, tr.rays(o, d), block=block, lenslet=lens, record=True, first=0, last=sp.viewing_window)
-        got = to_numpy(out.failed_at, *[p for p, _ in out.path])
-    failed_at, hits = got[0].astype(np.int64), got[1:]
-    points = np.stack([o] + list(hits))  # (L + 1, N, 3)
-    idx = np.arange(len(hits) + 1)[:, None] - 1  # surface index of each row (−1: the display)
-    ok = (failed_at[None, :] < 0) | (idx < failed_at[None, :])
-    return points, ok
-
 def _stack(models: list[IniModel]):
     """The packed parameters of ``models`` (block ``u·states + k``) and their common tracer."""
     tr = models[0].tracer
@@ -261,6 +234,43 @@ def _stack(models: list[IniModel]):
     return tr, P, len(models[0].depths)
 
 
+def _trace_aimed(models: list[IniModel], u, s, m, n, rho, k, iterations: int, record: bool = False):
+    """Aim the rays (:func:`_aim_many`) and trace them from the display to the viewing window in
+    one launch (``record``: every surface's hit too). Returns ``(tracer, P, out, block, launch
+    origins (N, 3), stop miss)``."""
+    tr, P, nk = _stack(models)
+    T = tr.T
+    s_r, m_r, n_r, k_r, t, err = _aim_many(models, u, s, m, n, rho, k, iterations, (tr, P, nk))
+    o = np.column_stack([s_r, np.array([-mo.g for mo in models])[u]])
+    d = np.column_stack([t, np.ones(len(t))])
+    with dr.suspend_grad():
+        block = from_numpy(T.UInt32, (u * nk + k_r).astype(np.uint32))
+        lens = from_numpy(T.Int32, m_r, n_r)
+        out = tr.trace(P, tr.rays(o, d), block=block, lenslet=lens, record=record, first=0,
+                       last=models[0].spec.viewing_window)
+    return tr, P, out, block, o, err
+
+
+def ray_paths(model: IniModel, s, m, n, rho, k, iterations: int = 30):
+    """Aimed rays' points from the display to the viewing window, global frame, for drawing.
+
+    The rays of :func:`trace_rays` (display point ``s``, stop point ``rho`` of lenslet
+    (``m``, ``n``), CDP state ``k``). Returns ``(points (L + 1, N, 3), ok (L + 1, N))``:
+    the display point and the hit on every surface up to the viewing window (L surfaces);
+    ``ok`` is False from the surface where a ray failed on.
+    """
+    s = np.asarray(s, dtype=np.float64).reshape(-1, 2)
+    _, _, out, _, o, _ = _trace_aimed([model], np.zeros(len(s), dtype=np.int64), s, m, n, rho, k, iterations,
+                                      record=True)
+    with dr.suspend_grad():
+        got = to_numpy(out.failed_at, *[p for p, _ in out.path])
+    failed_at, hits = got[0].astype(np.int64), got[1:]
+    points = np.stack([o] + list(hits))  # (L + 1, N, 3)
+    idx = np.arange(len(hits) + 1)[:, None] - 1  # surface index of each row (−1: the display)
+    ok = (failed_at[None, :] < 0) | (idx < failed_at[None, :])
+    return points, ok
+
+
 def trace_rays_many(models: list[IniModel], u, s, m, n, rho, k, iterations: int = 30):
     """:func:`trace_rays` for rays of several designs in one launch: ray i belongs to ``models[u[i]]``.
 
@@ -268,17 +278,10 @@ def trace_rays_many(models: list[IniModel], u, s, m, n, rho, k, iterations: int 
     miss per model.
     """
     sp = models[0].spec
-    tr, P, nk = _stack(models)
-    T = tr.T
     u = np.asarray(u, dtype=np.int64).reshape(-1)
-    s_r, m_r, n_r, k_r, t, err = _aim_many(models, u, s, m, n, rho, k, iterations, (tr, P, nk))
-    z0 = np.array([-mo.g for mo in models])[u]
+    tr, P, out, block, _, err = _trace_aimed(models, u, s, m, n, rho, k, iterations)
+    T = tr.T
     with dr.suspend_grad():
-        block = from_numpy(T.UInt32, (u * nk + k_r).astype(np.uint32))
-        lens = from_numpy(T.Int32, m_r, n_r)
-        o = np.column_stack([s_r, z0])
-        d = np.column_stack([t, np.ones(len(t))])
-        out = tr.trace(P, tr.rays(o, d), block=block, lenslet=lens, first=0, last=sp.viewing_window)
         # In the viewing-window frame of each ray's design (one kernel with the trace).
         Rs, os_ = tr.frames(P)
         R_vw, o_vw = Rs[sp.viewing_window].T, os_[sp.viewing_window]

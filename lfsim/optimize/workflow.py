@@ -141,7 +141,6 @@ def plans(design: Design, stages=None, iterations: int | None = None, solver: st
     return out
 
 
-
 #: A start's name ends in what marks it as one: ", starting point", " (optimization start)", " start".
 _START = re.compile(r"(?:(?P<sep>[,;:])\s*|\s*(?P<open>\(\s*))(?:optimi[sz]ation\s+)?(?:starting\s+point|start)"
                     r"(?(open)\s*\))\s*$", re.IGNORECASE)
