@@ -44,5 +44,6 @@ def test_stacked_views_equal_the_per_view_references(scenes):
         assert np.allclose(ref["efl"][v], efl, rtol=1e-14, atol=0)
         for kk in range(nd):
             assert np.allclose(ref["fov"][v, kk], w.state(kk).fov_deg, rtol=1e-12, atol=0)
+            assert np.allclose(ref["pixel"][v, kk], w.state(kk).pixel_arcmin, rtol=1e-12, atol=0)
     # the views really differ (the test would not notice a stack that ignores them)
     assert np.max(np.abs(ref["display"][0] - ref["display"][2])) > 1e-4

@@ -34,7 +34,8 @@ def freeform_merit(tmp_path_factory):
     d = _design(scenes, tmp_path_factory.mktemp("m"),
                 ["S3.x2y0", "S4.x2y1", "S1.curvature", "A1a.curvature", "object.distance", "tunable"],
                 targets={"spot_axis_max_arcmin": 0.5, "gd_mean_deg": 0.3, "min_prism_thickness": 25.0,
-                         "aperture_margin_mm": 1.0, "fov_deg": [30.0, 18.0]})
+                         "aperture_margin_mm": 1.0, "fov_deg": [30.0, 18.0],
+                         "pixel_arcmin": [3.0, 3.0]})
     return IniMerit(d, d.optimize)
 
 
@@ -52,7 +53,7 @@ def _central(M, x0, j: int, h: float, rows) -> np.ndarray:
 
 def test_merit_jacobian_matches_central_differences(freeform_merit):
     """Every residual block (spot, spot per axis, GD, PA, distortion, crosstalk, TIR,
-    apertures, EFL, thickness) against
+    apertures, EFL, FOV, pixel, thickness) against
     central differences of the exact residuals: rays re-aimed, display layout and
     paraxial references moving with the design."""
     M = freeform_merit
@@ -60,7 +61,7 @@ def test_merit_jacobian_matches_central_differences(freeform_merit):
     r, J, det = M.evaluate(x0, dense=True)  # every row, so that rows line up between points
     assert np.isfinite(r).all() and np.isfinite(J).all() and det["rays_lost"] == 0
     assert det["spot_axis_max"] > 0 and det["gd_max"] > 0 and det["gd_mean"] > 0  # the hinge blocks are active
-    assert det["prism_thickness"] > 0 and det["fov"] > 0
+    assert det["prism_thickness"] > 0 and det["fov"] > 0 and det["pixel"] > 0
     assert sum(v for k, v in det.items() if k.startswith("aperture_")) > 0  # rays within the margin
     for j in range(len(x0)):
         h = 1e-6 * max(1.0, abs(x0[j])) if M.cols[j].state is None else 1e-4

@@ -131,6 +131,8 @@ BAD = [
     ("[optimize.targets]\nmin_air_gap = -0.1", "optimize.targets.min_air_gap", ">= 0"),
     ("[optimize.targets]\nfov_deg = [30.0]", "optimize.targets.fov_deg", "[x, y]"),
     ("[optimize.targets]\nfov_deg = [30.0, 190.0]", "optimize.targets.fov_deg", "(0, 180)"),
+    ("[optimize.targets]\npixel_arcmin = 3.0", "optimize.targets.pixel_arcmin", "[x, y]"),
+    ("[optimize.targets]\npixel_arcmin = [3.0, -1.0]", "optimize.targets.pixel_arcmin", "(0, 600)"),
     ("[optimize.targets]\nspot = 1.0", "optimize.targets.spot", "unknown key"),
     ("[optimize.targets]\ntrack_max_mm = -150.0", "optimize.targets.track_max_mm", "> 0"),
     ("[optimize.targets]\neye_relief_min_mm = 0.0", "optimize.targets.eye_relief_min_mm", "> 0"),

@@ -39,6 +39,8 @@ Schema (units mm, degrees, diopters)::
                              # absent: keep the starting design's
     fov_deg = [30.0, 18.0]   # optional: full FOV (x, y) of every CDP state, as `lfsim ini`
                              # reports it (first-order); absent: off
+    pixel_arcmin = [3.0, 3.0]  # optional: one display pixel (x, y) seen from the window in
+                             # every CDP state, as `lfsim ini` reports it; absent: off
     min_center_thickness = 0.3    # mm, glass, >= 0
     min_edge_thickness = 0.3      # mm, glass, >= 0
     min_air_gap = 0.1             # mm, >= 0
@@ -62,6 +64,7 @@ Schema (units mm, degrees, diopters)::
     crosstalk = 1.0
     efl = 10.0
     fov = 10.0               # per % of the FOV target
+    pixel = 10.0             # per % of the pixel target
     thickness = 1.0
     tir = 1.0
     package = 1.0            # per µm beyond a package limit
@@ -158,6 +161,7 @@ class OptimizeTargets:
     aperture_margin_mm: float = 0.0
     efl_mm: float | None = None
     fov_deg: tuple[float, float] | None = None
+    pixel_arcmin: tuple[float, float] | None = None
     min_center_thickness: float = 0.3
     min_edge_thickness: float = 0.3
     min_air_gap: float = 0.1
@@ -200,6 +204,7 @@ class OptimizeWeights:
     crosstalk: float = 1.0
     efl: float = 10.0
     fov: float = 10.0
+    pixel: float = 10.0
     thickness: float = 1.0
     tir: float = 1.0
     package: float = 1.0
@@ -384,6 +389,12 @@ def _targets(ctx, tab, p="optimize.targets") -> OptimizeTargets:
                                                            or not 0.0 < a < 180.0 for a in v)):
             raise ctx.err(f"{p}.fov_deg", v, "expected [x, y], two full field angles in degrees in (0, 180)")
         kw["fov_deg"] = (float(v[0]), float(v[1]))
+    if "pixel_arcmin" in tab:
+        v = tab["pixel_arcmin"]
+        if (not isinstance(v, list) or len(v) != 2 or any(isinstance(a, bool) or not isinstance(a, (int, float))
+                                                           or not 0.0 < a < 600.0 for a in v)):
+            raise ctx.err(f"{p}.pixel_arcmin", v, "expected [x, y], two pixel angles in arcmin in (0, 600)")
+        kw["pixel_arcmin"] = (float(v[0]), float(v[1]))
     if "efl_mm" in tab:
         v = tab["efl_mm"]
         if isinstance(v, float) and math.isnan(v):

@@ -105,11 +105,11 @@ class StackedViews:
             out.append(np.abs(plus[:, ax] - minus[:, ax]))
         return np.stack(out, axis=-1)
 
-    def fov_deg(self, k: int) -> np.ndarray:
-        """Full FOV (V, 2) in degrees between the edge EI centres' outer edges, x and y
-        (:meth:`IniModel.state`'s ``fov_deg``: Eqs. 7–9 generalized)."""
+    def _theta_ei(self, k: int):
+        """Per axis, the tangent-space angle (V,) one elemental image subtends from the
+        viewing window (Eq. 8's θ), with the EI centre (V, 2), the EI pitch (V, 2) and
+        the retinal tangent map of state k."""
         mo = self.model
-        M, N = mo.arr.m, mo.arr.n
         c = self.c_ref
         s0 = self.ei_centers(k, mo.m_ref, mo.n_ref)  # (V, 2)
         pei = self.ei_pitch(k)  # (V, 2)
@@ -127,6 +127,14 @@ class StackedViews:
             ep = self.paraxial_vw(k, s0 + hp, cb, z, per_view=True)
             em = self.paraxial_vw(k, s0 - hp, cb, z, per_view=True)
             theta.append(np.abs(retinal(ep)[:, ax] - retinal(em)[:, ax]))
+        return theta, s0, pei, cb, z, retinal
+
+    def fov_deg(self, k: int) -> np.ndarray:
+        """Full FOV (V, 2) in degrees between the edge EI centres' outer edges, x and y
+        (:meth:`IniModel.state`'s ``fov_deg``: Eqs. 7–9 generalized)."""
+        mo = self.model
+        M, N = mo.arr.m, mo.arr.n
+        theta, s0, _, cb, z, retinal = self._theta_ei(k)
         r0 = retinal(self.paraxial_vw(k, s0, cb, z, per_view=True))
         s1 = self.ei_centers(k, mo.m_ref + 1, mo.n_ref + 1)
         c1 = np.broadcast_to(mo.lenslet_center(mo.m_ref + 1, mo.n_ref + 1), s1.shape)
@@ -134,6 +142,14 @@ class StackedViews:
         delta = np.abs(r1 - r0)
         return np.stack([2.0 * np.degrees(np.arctan(0.5 * (nl - 1) * delta[:, i] + 0.5 * theta[i]))
                          for i, nl in enumerate((M, N))], axis=-1)
+
+    def pixel_arcmin(self, k: int) -> np.ndarray:
+        """One display pixel (V, 2) seen from the viewing window, arcmin, x and y
+        (:meth:`IniModel.state`'s ``pixel_arcmin``: the EI's angle over its pitch, times
+        the pixel pitch)."""
+        theta, _, pei, _, _, _ = self._theta_ei(k)
+        pitch = self.model.spec.pixel_pitch
+        return np.stack([60.0 * np.degrees(np.arctan(theta[ax] / pei[:, ax] * pitch)) for ax in range(2)], axis=-1)
 
     def display_points(self, m, n, k, fields) -> np.ndarray:
         """Display points (V, S, F, 2) of field fractions (F, 2) in the EIs of lenslets
@@ -153,7 +169,8 @@ class StackedViews:
         """The first-order references of sub-systems ``subs`` in every view: ``display``
         (V, S, F, 2), ``par_c`` (V, S, F, 2) paraxial retinal tangents of the chief rays,
         ``par_m`` (V, S, F, 4, 2) paraxial VW positions of the four marginal rays, ``d_v``
-        (V, S), ``efl`` (V, n_states), ``fov`` (V, n_states, 2) in degrees. ``display``:
+        (V, S), ``efl`` (V, n_states), ``fov`` (V, n_states, 2) in degrees, ``pixel`` (V, n_states, 2)
+        in arcmin. ``display``:
         the rays' display points when they are given (the traced ones), else the views'
         own layout."""
         mo = self.model
@@ -178,4 +195,5 @@ class StackedViews:
         with np.errstate(divide="ignore"):
             efl = -0.5 * (1.0 / self.JG[:, :, 2, 0] + 1.0 / self.JG[:, :, 3, 1])
         fov = np.stack([self.fov_deg(k) for k in range(len(mo.depths))], axis=1)
-        return dict(display=display, par_c=par_c, par_m=par_m, d_v=d_v, efl=efl, fov=fov)
+        pixel = np.stack([self.pixel_arcmin(k) for k in range(len(mo.depths))], axis=1)
+        return dict(display=display, par_c=par_c, par_m=par_m, d_v=d_v, efl=efl, fov=fov, pixel=pixel)

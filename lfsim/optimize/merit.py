@@ -32,6 +32,7 @@ aperture      pupil rays beyond a clear aperture of the relay or eyepiece
               analysis vignettes rays beyond the aperture itself)
 efl           relay–eyepiece focal length per CDP state, % from its target
 fov           full FOV per CDP state and axis, % from ``fov_deg``
+pixel         one display pixel seen from the window per CDP state and axis, % from ``pixel_arcmin``
 thickness     centre thickness of glass / air gaps below their minimum, and
               edge thickness of glass elements at their clear radius, µm
 package       the mechanical package (:mod:`lfsim.ini.package`) beyond its limits:
@@ -146,6 +147,7 @@ class _Sample:
     dd_v: np.ndarray | None = None
     defl: np.ndarray | None = None
     dfov: np.ndarray | None = None
+    dpixel: np.ndarray | None = None
     figures: dict = field(default_factory=dict)
 
 
@@ -503,8 +505,8 @@ class IniMerit:
         gw = self._grid_weights(model, subs)
         for name, r, j in self._gd_mean(st, gw):
             rows.add(name, r, j)
-        for block in (self._efl, self._fov, self._thickness, self._edge_thickness, self._prism_thickness_block,
-                      self._package):
+        for block in (self._efl, self._fov, self._pixel, self._thickness, self._edge_thickness,
+                      self._prism_thickness_block, self._package):
             for name, r, j in block(st):
                 rows.add(name, r, j)
         r_all, J_all, details, self.layout = rows.result()
@@ -522,7 +524,8 @@ class IniMerit:
                        gd_mean_deg=float(gw[okc] @ gd[okc] / gw[okc].sum()) if okc.any() else None,
                        **self._colour_details(fig),
                        rays=self.rays, rays_lost=int(fig["lost"].sum()),
-                       efl_mm=[float(v) for v in ref["efl"]], fov_deg=ref["fov"].tolist())
+                       efl_mm=[float(v) for v in ref["efl"]], fov_deg=ref["fov"].tolist(),
+                       pixel_arcmin=ref["pixel"].tolist())
         self.details = details
         return r_all, J_all, details
 
@@ -543,7 +546,7 @@ class IniMerit:
         dsx = ds.reshape(S, F, R, 2, K) if dense and derivatives else None
         pos, r, dpos, dr = _retinal(J, (S, F, R), D, K, derivatives, dsx)
         nrec = J.surf.shape[1]
-        per_state = ("efl", "fov")  # references per CDP state, not per sub-system
+        per_state = ("efl", "fov", "pixel")  # references per CDP state, not per sub-system
         cut = {key: (v if key in per_state else v[sl]) for key, v in ref.items()}
         st = _Sample(model=model, x=x, derivatives=derivatives, K=K, subs=part, ref=cut, S=S, F=F, R=R,
                      S_all=len(subs), dense=dense, ok=ok, pos=pos, r=r, surf=J.surf.reshape(S, F, R, nrec, 2),
@@ -560,7 +563,7 @@ class IniMerit:
             st.dpar_c = dref["par_c"][sl] if dref else np.zeros((S, F, 2, K))
             st.dpar_m = dref["par_m"][sl] if dref else np.zeros((S, F, 4, 2, K))
             st.dd_v = dref["d_v"][sl] if dref else np.zeros((S, K))
-            st.defl, st.dfov = dref.get("efl"), dref.get("fov")
+            st.defl, st.dfov, st.dpixel = dref.get("efl"), dref.get("fov"), dref.get("pixel")
         else:  # no columns: the derivative variants of lfsim.metrics run with K = 0
             st.dr, st.dpos = np.zeros(r.shape + (0,)), np.zeros(pos.shape + (0,))
             st.dpar_c, st.dpar_m, st.dd_v = np.zeros((S, F, 2, 0)), np.zeros((S, F, 4, 2, 0)), np.zeros((S, 0))
@@ -798,6 +801,18 @@ class IniMerit:
         f = st.ref["fov"]  # (states, 2)
         jac = st.dfov / tgt[None, :, None] * 100.0 * w.fov if st.derivatives and st.K else None
         yield "fov", (f - tgt) / tgt * 100.0 * w.fov, jac
+
+    def _pixel(self, st: _Sample):
+        """One display pixel seen from the viewing window per CDP state and axis (first-order
+        model, as `lfsim ini` reports it), % from ``pixel_arcmin``: with ``fov_deg`` it fixes
+        both the view of one elemental image and the step between views (Eqs. 7–10)."""
+        t, w = self.spec.targets, self.spec.weights
+        if t.pixel_arcmin is None:
+            return
+        tgt = np.array(t.pixel_arcmin, dtype=np.float64)
+        f = st.ref["pixel"]  # (states, 2)
+        jac = st.dpixel / tgt[None, :, None] * 100.0 * w.pixel if st.derivatives and st.K else None
+        yield "pixel", (f - tgt) / tgt * 100.0 * w.pixel, jac
 
     def _thickness(self, st: _Sample):
         """Centre thickness of variable glass thicknesses and air gaps below their minimum, µm."""
