@@ -468,3 +468,53 @@ def test_a_refused_optimization_writes_nothing(scenes, tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "optimize.weights.colour" in err, err
     assert not out.exists()
+
+
+def test_hinge_model_rows_equal_the_penalty_rows_with_a_jacobian_everywhere(scenes, tmp_path):
+    """lm-hinge's form of the mechanical constraints (package, glass edge and centre, prism
+    thickness): the same merit and block sums as the penalty form, every row kept with
+    its signed excess g (negative while the limit holds) as the last len(g) residuals'
+    max(0, g), and G against central differences of g for every variable, the display
+    gap and an XY term included (the penalty form's package derivatives leave both out)."""
+    from lfsim.ini.model import IniModel
+    from lfsim.ini.package import package
+
+    d0 = lfsim.load(scenes / "ini_freeform.toml")
+    fig = package(IniModel(d0))
+    box, pbox = fig["bounding_box_mm"], fig["prism_box_mm"]
+    targets = {"track_max_mm": fig["track_mm"] - 2.0, "eye_relief_min_mm": fig["eye_relief_mm"] - 1.0,
+               "box_max_mm": [v + 1.0 for v in box], "prism_box_max_mm": [pbox[0] - 1.0, pbox[1] + 1.0, pbox[2]],
+               "clear_diameter_max_mm": fig["max_clear_diameter_mm"] + 1.0,
+               "tunable_aperture_mm": fig["tunable_footprint_mm"] - 1.0, "min_prism_thickness": 25.0,
+               "min_edge_thickness": 1.0}
+    variables = ["S4.position_z", "S4.tilt_x", "A1a.curvature", "A2b.thickness", "S3.x2y0", "object.distance"]
+    d = _design(scenes, tmp_path, variables, targets=targets)
+    P, H = IniMerit(d, d.optimize), IniMerit(d, d.optimize, hinge_model=True)
+    x0 = H.x0
+    rp, Jp, dp = P.evaluate(x0, dense=True)
+    rh, Jh, dh = H.evaluate(x0)
+    g, G = H.hinges
+    assert rp @ rp == pytest.approx(rh @ rh, rel=1e-12)
+    for name in ("package", "thickness", "edge_thickness", "prism_thickness"):
+        assert dp[name] == pytest.approx(dh[name], rel=1e-12, abs=1e-9), name
+    assert np.array_equal(rh[-len(g):], np.maximum(g, 0.0))
+    np.testing.assert_array_equal(Jh[-len(g):], np.where((g > 0)[:, None], G, 0.0))
+    live = np.isfinite(g)
+    assert (g[live] > 0).any() and (g[live] < 0).any()  # limits that hold and limits that do not
+    assert np.all(G[~live] == 0.0)
+    moved = set()
+    for j, c in enumerate(H.cols):
+        h = 1e-6 * max(1.0, abs(x0[j]))
+        xp, xm = x0.copy(), x0.copy()
+        xp[j] += h
+        xm[j] -= h
+        H.evaluate(xp, derivatives=False)
+        gp = H.hinges[0].copy()
+        H.evaluate(xm, derivatives=False)
+        with np.errstate(invalid="ignore"):  # -inf - -inf: a limit that is off
+            fd = np.where(live, (gp - H.hinges[0]) / (2 * h), 0.0)
+        scale = np.abs(fd).max()
+        if scale > 0:
+            moved.add(c.name)
+        np.testing.assert_allclose(G[:, j], fd, rtol=0, atol=1e-4 * scale + 1e-6, err_msg=c.label)
+    assert {"S3.x2y0", "object.distance", "S4.position_z"} <= moved

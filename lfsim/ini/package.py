@@ -185,8 +185,11 @@ def _box(points) -> tuple[np.ndarray, np.ndarray] | None:
     return p.min(axis=0), p.max(axis=0)
 
 
-def package(model: IniModel) -> dict:
+def package(model: IniModel, solids: bool = True) -> dict:
     """The mechanical package of ``model``'s display path (mm, global frame; JSON-ready).
+
+    ``solids=False`` leaves out the glass and prism thicknesses (None), which the
+    merit measures in blocks of their own.
 
     Keys (``docs/contracts.md``): ``track_mm``, ``max_clear_diameter_mm``,
     ``clear_diameters_mm``, ``tunable_clear_aperture_mm``,
@@ -301,11 +304,11 @@ def package(model: IniModel) -> dict:
 
     # ----------------------------------------------------------- thickness
     centre, edge = [], []
-    for i, j, rad in glass_pairs(system, names, values, vw):
+    for i, j, rad in (glass_pairs(system, names, values, vw) if solids else ()):
         centre.append(float(values[tr.index[f"{surf[i].name}.thickness"]]))
         edge.append(edge_thickness(tr, values, i, j, rad))
     mla = list(spec.mla_surfaces)
-    for i, j in zip(mla[:-1], mla[1:]):
+    for i, j in (zip(mla[:-1], mla[1:]) if solids else ()):
         if (j != i + 1 or surf[i].interaction != "refract" or surf[j].interaction != "refract"
                 or not is_glass(system, names, values, i)):
             continue
@@ -315,7 +318,7 @@ def package(model: IniModel) -> dict:
         e = centre[-1] + float(zj[0]) - float(zi[0])
         edge.append(e if math.isfinite(e) else -math.inf)
     p_min = None
-    if prisms(system):
+    if solids and prisms(system):
         th = prism_thickness(tr, values, PRISM_POINTS)[0]
         th = th[np.isfinite(th)]
         p_min = _f(np.min(th)) if th.size else None

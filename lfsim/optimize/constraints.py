@@ -14,9 +14,11 @@ from ..optics.solids import edge_thickness, glass_pairs, is_glass, rim_thickness
 __all__ = ["center_thickness", "edge_thickness", "edge_thickness_block", "glass_pairs", "is_glass"]
 
 
-def center_thickness(cols, x, system, names, values, targets, weights, K: int, derivatives: bool):
+def center_thickness(cols, x, system, names, values, targets, weights, K: int, derivatives: bool,
+                     signed: bool = False):
     """Variable centre thicknesses below ``min_center_thickness`` (glass) or
-    ``min_air_gap`` (air), µm."""
+    ``min_air_gap`` (air), µm. ``signed``: the signed excess (negative while the limit
+    holds) with its Jacobian at every row (:meth:`lfsim.optimize.merit.Rows.add_hinge`)."""
     res_t, jac_t = [], []
     surf_names = [s.name for s in system.surfaces]
     for j_, c in enumerate(cols):
@@ -27,9 +29,9 @@ def center_thickness(cols, x, system, names, values, targets, weights, K: int, d
         if lo is None:
             continue
         v = float(x[j_])
-        res_t.append(max(0.0, lo - v) * 1000.0 * weights.thickness)
+        res_t.append((lo - v if signed else max(0.0, lo - v)) * 1000.0 * weights.thickness)
         row = np.zeros(K)
-        if v < lo:
+        if v < lo or signed:
             row[j_] = -1000.0 * weights.thickness
         jac_t.append(row)
     if res_t:
@@ -39,9 +41,11 @@ def center_thickness(cols, x, system, names, values, targets, weights, K: int, d
 _OFF_AXIS = ("decenter_x", "decenter_y", "tilt_x", "tilt_y", "tilt_z")
 
 
-def edge_thickness_block(cols, x, tracer, values, pairs, targets, weights, K: int, derivatives: bool):
+def edge_thickness_block(cols, x, tracer, values, pairs, targets, weights, K: int, derivatives: bool,
+                         signed: bool = False):
     """Edge thickness of the glass elements ``pairs`` below ``min_edge_thickness``, µm;
-    derivatives by central differences (one launch per element).
+    derivatives by central differences (one launch per element). ``signed``: the signed
+    excess with its Jacobian at every row (:meth:`lfsim.optimize.merit.Rows.add_hinge`).
 
     An element whose own decenter or tilt is a variable gives a row per rim point
     (:func:`~lfsim.optics.solids.rim_thickness`): the least thickness over the rim
@@ -64,8 +68,8 @@ def edge_thickness_block(cols, x, tracer, values, pairs, targets, weights, K: in
             return np.atleast_1d(edge_thickness(tracer, V, i, j, rad)).reshape(-1, 1)
 
         et = thickness(values[None])[0]
-        over = et < lim
-        res.append(np.where(over, lim - et, 0.0) * 1000.0 * weights.thickness)  # as scale, rounded as ever
+        over = (et < lim) | (signed & np.isfinite(et))
+        res.append(((lim - et) if signed else np.where(over, lim - et, 0.0)) * 1000.0 * weights.thickness)
         jac = np.zeros((et.size, K)) if derivatives else None
         if derivatives and over.any() and use:
             hs = np.array([1e-7 * max(1.0, abs(x[c_])) for c_ in use])

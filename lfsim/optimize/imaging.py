@@ -48,7 +48,7 @@ import numpy as np
 from ..design.design import Design
 from ..optics.sampling import field_rays
 from . import constraints
-from .merit import LOST, columns, stack_blocks
+from .merit import LOST, Rows, columns
 
 FD_STEP = 1e-6  # relative central-difference step of the first-order dependences
 
@@ -85,8 +85,11 @@ class ImagingMerit:
         Rings of the pupil rule (default ``[optimize.sampling] pupil``).
     """
 
-    def __init__(self, design: Design, spec, cols=None, stride=None, pupil_rings: int | None = None):
+    def __init__(self, design: Design, spec, cols=None, stride=None, pupil_rings: int | None = None,
+                 hinge_model: bool = False):
         self.design0, self.spec = design, spec
+        self.hinge_model = bool(hinge_model)  # glass thickness as the lm-hinge solver's signed hinges
+        self.hinges = (np.zeros(0), None)
         self.cols = list(cols) if cols is not None else columns(design, spec)
         if any(c.state is not None for c in self.cols):
             raise ValueError(f"{design.path}: tunable-lens variables need an InI design ([ini])")
@@ -190,11 +193,18 @@ class ImagingMerit:
             add(("efl", np.array([(efl - tgt) / tgt * 100.0 * w.efl]),
                  (defl / tgt * 100.0 * w.efl)[None] if derivatives else None))
         values = self._values(x)[self.primary]
-        blocks += constraints.center_thickness(self.cols, x, self.design0.system, self.names, values, t, w, K,
-                                               derivatives)
-        blocks += constraints.edge_thickness_block(self.cols, x, self.tracer, values, self.pairs, t, w, K,
-                                                   derivatives)
-        r_all, J_all, details, self.layout = stack_blocks(blocks, K, derivatives)
+        hinge = self.hinge_model
+        limits = [*constraints.center_thickness(self.cols, x, self.design0.system, self.names, values, t, w, K,
+                                                derivatives, signed=hinge),
+                  *constraints.edge_thickness_block(self.cols, x, self.tracer, values, self.pairs, t, w, K,
+                                                    derivatives, signed=hinge)]
+        rows = Rows(K, derivatives, compress=False)
+        for name, r, j in blocks:
+            rows.add(name, r, j)
+        for name, r, j in limits:  # the step model's signed hinges for lm-hinge (see IniMerit)
+            (rows.add_hinge if hinge else rows.add)(name, r, j)
+        r_all, J_all, details, self.layout = rows.result()
+        self.hinges = rows.hinges
         self.rays = int(ok.size)
         # RMS spot radius per field (µm), polychromatic, about the primary chief ray.
         wq = self.w_pupil[None, None, :] * use

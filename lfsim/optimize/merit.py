@@ -166,6 +166,7 @@ class Rows:
     def __init__(self, K: int, derivatives: bool, compress: bool = True):
         self.K, self.derivatives, self.compress = K, derivatives, compress
         self.res, self.jac, self.sums, self.count = [], [], {}, {}
+        self.h_g, self.h_j, self.h_count = [], [], {}
 
     def add(self, name: str, r, j) -> None:
         r = np.asarray(r, dtype=np.float64).ravel()
@@ -186,19 +187,39 @@ class Rows:
         self.sums[name] = self.sums.get(name, 0.0) + float(r @ r)
         self.count[name] = self.count.get(name, 0) + r.size
 
+    def add_hinge(self, name: str, g, j) -> None:
+        """A constraint block in the step model's own form: ``g`` the signed excess of each
+        row over its limit (residual ``max(0, g)``), ``j`` its Jacobian whether or not the
+        limit holds now. The rows go to the end of the residual vector, every one kept
+        (:meth:`result`), and ``(g, j)`` to :attr:`hinges`."""
+        g = np.asarray(g, dtype=np.float64).ravel()
+        g = np.where(np.isfinite(g), g, -np.inf)  # not measurable: no residual, no pull
+        self.h_g.append(g)
+        if self.derivatives:
+            j = np.asarray(j, dtype=np.float64).reshape(-1, self.K)
+            self.h_j.append(np.where(np.isfinite(j) & np.isfinite(g)[:, None], j, 0.0))
+        r = np.maximum(g, 0.0)
+        self.sums[name] = self.sums.get(name, 0.0) + float(r @ r)
+        self.h_count[name] = self.h_count.get(name, 0) + r.size
+
+    @property
+    def hinges(self):
+        """``(g (H,), G (H, K) or None)`` of the :meth:`add_hinge` rows."""
+        g = np.concatenate(self.h_g) if self.h_g else np.zeros(0)
+        G = (np.concatenate(self.h_j) if self.h_j else np.zeros((0, self.K))) if self.derivatives else None
+        return g, G
+
     def result(self):
         r = np.concatenate(self.res) if self.res else np.zeros(0)
         J = (np.concatenate(self.jac) if self.jac else np.zeros((0, self.K))) if self.derivatives else None
-        return r, J, dict(self.sums), list(self.count.items())
-
-
-def stack_blocks(blocks, K: int, derivatives: bool, compress: bool = False):
-    """Residual blocks ``(name, residuals, Jacobian rows or None)`` → (residuals (M,),
-    Jacobian (M, K) or None, the sum of squares per block, [(name, size)]) (see :class:`Rows`)."""
-    rows = Rows(K, derivatives, compress)
-    for name, r, j in blocks:
-        rows.add(name, r, j)
-    return rows.result()
+        layout = list(self.count.items())
+        if self.h_g:  # hinge rows last, every one (their count is fixed): max(0, g), G where g > 0
+            g, G = self.hinges
+            r = np.concatenate([r, np.maximum(g, 0.0)])
+            if self.derivatives:
+                J = np.concatenate([J, np.where((g > 0.0)[:, None], G, 0.0)])
+            layout += list(self.h_count.items())
+        return r, J, dict(self.sums), layout
 
 
 def _hinge(st, over, excess, jac):
@@ -262,11 +283,17 @@ class IniMerit:
     """
 
     def __init__(self, design: Design, spec, cols: list[Column] | None = None, stride=None,
-                 fields: int | None = None, pupil_nodes: int | None = None, efl_target=None):
+                 fields: int | None = None, pupil_nodes: int | None = None, efl_target=None,
+                 hinge_model: bool = False):
         if design.ini is None:
             raise ValueError(f"{design.path}: the design has no [ini] section")
         self.design0 = design
         self.spec = spec
+        #: The mechanical constraints (glass and air thickness, prism thickness, package) as
+        #: signed hinges with their Jacobian at every row, whether or not the limit holds
+        #: (:meth:`Rows.add_hinge`), for the ``lm-hinge`` solver's step model.
+        self.hinge_model = bool(hinge_model)
+        self.hinges = (np.zeros(0), None)
         self.cols = list(cols) if cols is not None else columns(design, spec)
         self.stride = tuple(stride or spec.stride)
         self.fields = int(fields or spec.fields)
@@ -505,11 +532,19 @@ class IniMerit:
         gw = self._grid_weights(model, subs)
         for name, r, j in self._gd_mean(st, gw):
             rows.add(name, r, j)
-        for block in (self._efl, self._fov, self._pixel, self._thickness, self._edge_thickness,
-                      self._prism_thickness_block, self._package):
+        for block in (self._efl, self._fov, self._pixel):
             for name, r, j in block(st):
                 rows.add(name, r, j)
+        for block in (self._thickness, self._edge_thickness, self._prism_thickness_block, self._package):
+            for name, r, j in block(st):
+                if self.hinge_model:  # signed excess with its Jacobian everywhere (the step model's)
+                    rows.add_hinge(name, r, j)
+                else:
+                    rows.add(name, r, j)
         r_all, J_all, details, self.layout = rows.result()
+        #: The constraint rows of the last evaluation in the step model's form, the last
+        #: ``len(g)`` entries of the residuals (``hinge_model``; else empty): see :meth:`Rows.add_hinge`.
+        self.hinges = rows.hinges
         self.rays = S * F * R
         okc, pa_ok, spot_ok = fig["gd_ok"], fig["pa_ok"], fig["spot_ok"]
         gd, pa_f, rms = fig["gd"], fig["pa"], fig["rms"]
@@ -818,7 +853,8 @@ class IniMerit:
         """Centre thickness of variable glass thicknesses and air gaps below their minimum, µm."""
         m = st.model
         yield from constraints.center_thickness(self.cols, st.x, m.system, m.tracer.names, m.values0,
-                                                self.spec.targets, self.spec.weights, st.K, st.derivatives)
+                                                self.spec.targets, self.spec.weights, st.K, st.derivatives,
+                                                signed=self.hinge_model)
 
     def _edge_thickness(self, st: _Sample):
         """Edge thickness of glass elements (display path, outside the lenslet array) at
@@ -826,7 +862,7 @@ class IniMerit:
         m = st.model
         pairs = constraints.glass_pairs(m.system, m.tracer.names, m.values0, m.spec.viewing_window)
         yield from constraints.edge_thickness_block(self.cols, st.x, m.tracer, m.values0, pairs, self.spec.targets,
-                                                    self.spec.weights, st.K, st.derivatives)
+                                                    self.spec.weights, st.K, st.derivatives, signed=self.hinge_model)
 
     def _prism_thickness_block(self, st: _Sample):
         """A prism's thickness between opposite faces (lfsim.optics.solids) below its
@@ -837,7 +873,7 @@ class IniMerit:
             return
         vals = model.values0
         th = prism_thickness(model.tracer, vals, PRISM_POINTS)[0][0]
-        over = np.isfinite(th) & (th < t.min_prism_thickness)
+        over = np.isfinite(th) & ((th < t.min_prism_thickness) | self.hinge_model)
         jac = None
         if st.derivatives:
             jac = np.zeros((th.size, st.K))
@@ -854,15 +890,20 @@ class IniMerit:
                     d_th = (tv[0::2] - tv[1::2]) / (2.0 * hs[:, None])  # (len(geo), Q)
                 jac[:, geo] = np.where(over[:, None] & np.isfinite(d_th.T), -d_th.T, 0.0)
             jac *= 1000.0 * w.thickness
-        yield "prism_thickness", np.where(over, t.min_prism_thickness - th, 0.0) * 1000.0 * w.thickness, jac
+        g = t.min_prism_thickness - th if self.hinge_model else np.where(over, t.min_prism_thickness - th, 0.0)
+        yield "prism_thickness", g * 1000.0 * w.thickness, jac
 
     @staticmethod
-    def _package_excess(fig: dict, t) -> np.ndarray:
+    def _package_excess(fig: dict, t, signed: bool = False) -> np.ndarray:
         """Each package limit's excess (mm, >= 0 inside the limit is 0): track, the box and
         the prism box per axis, eye relief, the relay's largest clear diameter, the
         tunable lens's footprint; a figure that cannot be measured (no ray reached its
-        surface) counts as 0 here: the lost-ray block already carries it."""
+        surface) counts as 0 here: the lost-ray block already carries it. ``signed``:
+        the signed excess (negative inside the limit), −inf for a limit that is off or a
+        figure that cannot be measured."""
         def over(v, lim, sign=1.0):
+            if signed:
+                return -np.inf if v is None or lim is None else sign * (v - lim)
             return 0.0 if v is None or lim is None else max(0.0, sign * (v - lim))
 
         box, pbox = fig["bounding_box_mm"], fig["prism_box_mm"]
@@ -887,6 +928,9 @@ class IniMerit:
         if not t.package_limits:
             return
         um = 1000.0 * w.package
+        if self.hinge_model:
+            yield "package", *self._package_signed(st, t, um)
+            return
         e0 = self._package_excess(package(st.model), t)
         jac = None
         if st.derivatives:
@@ -904,6 +948,33 @@ class IniMerit:
                     jac[:, j_] = np.where(active, (ep - em) / (2.0 * h), 0.0)
             jac *= um
         yield "package", e0 * um, jac
+
+    def _package_signed(self, st: _Sample, t, um: float):
+        """The package rows in the step model's form: each limit's signed excess (µm × the
+        weight) and its derivatives over every variable of the design (central
+        differences of the figures, rebuilt at x ± h; only for limits that are on and
+        measurable), the tunable powers included: the display gap, the lenslets and the
+        prism's XY terms move the track, the eye relief and the prism's extent too."""
+        from ..ini.package import package
+
+        g0 = self._package_excess(package(st.model, solids=False), t, signed=True)
+        jac = None
+        if st.derivatives:
+            jac = np.zeros((g0.size, st.K))
+            live = np.isfinite(g0)
+            if live.any():
+                for j_ in range(st.K):
+                    h = 1e-6 * max(1.0, abs(st.x[j_]))
+                    xp, xm = st.x.copy(), st.x.copy()
+                    xp[j_] += h
+                    xm[j_] -= h
+                    ep = self._package_excess(package(self._build_model(xp), solids=False), t, signed=True)
+                    em = self._package_excess(package(self._build_model(xm), solids=False), t, signed=True)
+                    with np.errstate(invalid="ignore"):
+                        d = (ep - em) / (2.0 * h)
+                    jac[:, j_] = np.where(live & np.isfinite(d), d, 0.0)
+            jac *= um
+        return g0 * um, jac
 
     @staticmethod
     def describe(details: dict) -> str:

@@ -265,10 +265,51 @@ def _result(meta, x, status) -> OptimizeResult:
 
 # ---------------------------------------------------------------- Levenberg–Marquardt
 
+def _hinge_rows(problem, r, J, hinges: bool):
+    """Split ``(r, J)`` into the smooth rows and the problem's hinge rows ``(g, G)`` (the
+    last ``len(g)`` entries of ``r``, whose residual is ``max(0, g)``); no hinge rows
+    unless ``hinges`` and the problem reports them (``problem.hinges``)."""
+    if not hinges:
+        return r, J, np.zeros(0), np.zeros((0, J.shape[1]))
+    g, G = getattr(problem, "hinges", (np.zeros(0), None))
+    H = len(g)
+    if H == 0:
+        return r, J, np.zeros(0), np.zeros((0, J.shape[1]))
+    G = np.asarray(G, dtype=np.float64)
+    if G.shape != (H, J.shape[1]) or r.size < H:
+        raise ValueError(f"problem.hinges gave g {np.shape(g)} and G {G.shape} for r {r.shape}, J {J.shape}")
+    return r[:-H], J[:-H], np.asarray(g, dtype=np.float64), G
+
+
+def _hinge_step(R, qtr, G, g, damp, max_sweeps: int = 50):
+    """Minimiser of ``‖qtr + R h‖² + ‖max(0, g + G h)‖² + ‖damp·h‖²`` (a strictly convex,
+    piecewise quadratic model): the hinge rows predicted active at the step are kept as
+    linear rows, the others dropped, and the set is updated until it repeats (a
+    semismooth Newton iteration; a set seen before is merged with the new one). Returns
+    ``h``."""
+    act = g > 0.0
+    seen = set()
+    n = R.shape[1]
+    h = np.zeros(n)
+    for _ in range(max_sweeps):
+        A = np.vstack([R, G[act], np.diag(damp)])
+        b = np.concatenate([-qtr, -g[act], np.zeros(n)])
+        h = np.linalg.lstsq(A, b, rcond=None)[0]
+        with np.errstate(invalid="ignore"):
+            new = (g + G @ h) > 0.0
+        if np.array_equal(new, act):
+            break
+        key = new.tobytes()
+        act = (new | act) if key in seen else new
+        seen.add(key)
+    return h
+
+
 def levenberg_marquardt(problem: Problem, x0, bounds: Bounds | None = None, max_iterations: int = 50,
                         lambda0: float = 1e-3, ftol: float = 1e-10, xtol: float = 1e-12, gtol: float = 1e-10,
                         scale=None, checkpoint=None, resume: bool = False, progress: bool = False,
-                        callback: Callable | None = None, on_iteration: Callable | None = None) -> OptimizeResult:
+                        callback: Callable | None = None, on_iteration: Callable | None = None,
+                        hinges: bool = False) -> OptimizeResult:
     """Damped least squares (Levenberg 1944; Marquardt 1963) with Nielsen's damping update.
 
     In scaled units ``z = x/scale`` each trial step ``h`` minimises
@@ -300,11 +341,27 @@ def levenberg_marquardt(problem: Problem, x0, bounds: Bounds | None = None, max_
     (max-norm of the projected gradient at the new point, scaled), ``seconds``.
     ``callback(iteration, x, cost)`` returning True stops with ``"stopped"``;
     ``on_iteration(record)`` receives each history record as it is made (a log line).
+
+    ``hinges`` (the ``lm-hinge`` solver): the problem's constraint rows enter the
+    step model as hinges. After each ``jacobian`` call, ``problem.hinges`` gives
+    ``(g, G)``: the signed excess of each constraint row over its limit and its
+    Jacobian, **whether or not the limit holds** there; their residuals
+    ``max(0, g)`` are the last ``len(g)`` entries of ``r``. The trial step then
+    minimises ``‖r_s + J_s h‖² + ‖max(0, g + G h)‖² + λ‖D h‖²`` (:func:`_hinge_step`)
+    instead of treating every row as linear: a constraint that holds is not pulled
+    on, but a step that would break it sees the cost of doing so, and one that is
+    broken is not extrapolated past its limit. ``pred`` in the gain ratio is this
+    model's reduction. Without ``hinges`` a constraint that holds has a zero row
+    and the model cannot see a step break it (the gain ratio then rejects such
+    steps, and the damping grows).
     """
     x0, lower, upper, scale = _setup(x0, bounds, scale)
     settings = {"lambda0": float(lambda0), "ftol": float(ftol), "xtol": float(xtol), "gtol": float(gtol)}
+    if hinges:
+        settings["hinges"] = True
     meta, arrays, r, J = _start(problem, "levenberg_marquardt", x0, lower, upper, scale, settings,
                                 checkpoint, resume)
+    r_s, J_s, hg, hG = _hinge_rows(problem, r, J, hinges)
     x = arrays["x"]
     d = arrays.get("d", np.zeros(x.size))
     lam, nu = meta.get("lam", float(lambda0)), meta.get("nu", 2.0)
@@ -323,19 +380,31 @@ def levenberg_marquardt(problem: Problem, x0, bounds: Bounds | None = None, max_
                 status = "max_iterations"
                 break
             free = ~active
-            Q, R = np.linalg.qr(Js[:, free])  # once per iteration; each trial λ then costs O(K³), not O(MK²)
-            rhs = np.concatenate([-(Q.T @ r), np.zeros(int(free.sum()))])
+            Jss, Gs = J_s * scale, hG * scale
+            # once per iteration; each trial λ then costs O(K³), not O(MK²)
+            Q, R = np.linalg.qr(Jss[:, free] if hg.size else Js[:, free])
+            qtr = Q.T @ (r_s if hg.size else r)
+            rhs = np.concatenate([-qtr, np.zeros(int(free.sum()))])
             while True:
                 h = np.zeros(x.size)
-                A = np.vstack([R, np.diag(np.sqrt(lam) * d[free])])
-                h[free] = np.linalg.lstsq(A, rhs, rcond=None)[0]
+                if hg.size:
+                    h[free] = _hinge_step(R, qtr, Gs[:, free], hg, np.sqrt(lam) * d[free])
+                else:
+                    A = np.vstack([R, np.diag(np.sqrt(lam) * d[free])])
+                    h[free] = np.linalg.lstsq(A, rhs, rcond=None)[0]
                 x_t = np.clip(x + scale * h, lower, upper)
                 h = (x_t - x) / scale
                 if np.linalg.norm(h) <= xtol * (np.linalg.norm(x / scale) + xtol):
                     status = "converged"
                     break
-                Jh = Js @ h
-                pred = -(2.0 * (r @ Jh) + Jh @ Jh)
+                if hg.size:  # the piecewise-quadratic model's reduction
+                    Jh = Jss @ h
+                    with np.errstate(invalid="ignore"):
+                        gh = np.maximum(hg + Gs @ h, 0.0)
+                    pred = cost - float((r_s + Jh) @ (r_s + Jh)) - float(np.nan_to_num(gh) @ np.nan_to_num(gh))
+                else:
+                    Jh = Js @ h
+                    pred = -(2.0 * (r @ Jh) + Jh @ Jh)
                 rho, step = -np.inf, None
                 if pred > 0:
                     r_t = np.asarray(problem.residuals(x_t.copy()), dtype=np.float64).reshape(-1)
@@ -357,6 +426,7 @@ def levenberg_marquardt(problem: Problem, x0, bounds: Bounds | None = None, max_
             small = cost - cost_t <= ftol * cost and pred <= ftol * cost
             lam_used = lam
             x, (r, J, _) = x_t, step
+            r_s, J_s, hg, hG = _hinge_rows(problem, r, J, hinges)
             cost = float(r @ r)
             lam, nu = float(lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)), 2.0
             g_new, _ = _projected((J * scale).T @ r, x, lower, upper)
