@@ -45,5 +45,6 @@ def test_stacked_views_equal_the_per_view_references(scenes):
         for kk in range(nd):
             assert np.allclose(ref["fov"][v, kk], w.state(kk).fov_deg, rtol=1e-12, atol=0)
             assert np.allclose(ref["pixel"][v, kk], w.state(kk).pixel_arcmin, rtol=1e-12, atol=0)
+            assert np.allclose(ref["ei_pitch"][v, kk], w.state(kk).p_ei, rtol=1e-12, atol=0)
     # the views really differ (the test would not notice a stack that ignores them)
     assert np.max(np.abs(ref["display"][0] - ref["display"][2])) > 1e-4

@@ -35,7 +35,7 @@ def freeform_merit(tmp_path_factory):
                 ["S3.x2y0", "S4.x2y1", "S1.curvature", "A1a.curvature", "object.distance", "tunable"],
                 targets={"spot_axis_max_arcmin": 0.5, "gd_mean_deg": 0.3, "min_prism_thickness": 25.0,
                          "aperture_margin_mm": 1.0, "fov_deg": [30.0, 18.0],
-                         "pixel_arcmin": [3.0, 3.0]})
+                         "pixel_arcmin": [3.0, 3.0], "display_mismatch_max": 0.0})
     return IniMerit(d, d.optimize)
 
 
@@ -53,7 +53,7 @@ def _central(M, x0, j: int, h: float, rows) -> np.ndarray:
 
 def test_merit_jacobian_matches_central_differences(freeform_merit):
     """Every residual block (spot, spot per axis, GD, PA, distortion, crosstalk, TIR,
-    apertures, EFL, FOV, pixel, thickness) against
+    apertures, EFL, FOV, pixel, display, thickness) against
     central differences of the exact residuals: rays re-aimed, display layout and
     paraxial references moving with the design."""
     M = freeform_merit
@@ -61,7 +61,7 @@ def test_merit_jacobian_matches_central_differences(freeform_merit):
     r, J, det = M.evaluate(x0, dense=True)  # every row, so that rows line up between points
     assert np.isfinite(r).all() and np.isfinite(J).all() and det["rays_lost"] == 0
     assert det["spot_axis_max"] > 0 and det["gd_max"] > 0 and det["gd_mean"] > 0  # the hinge blocks are active
-    assert det["prism_thickness"] > 0 and det["fov"] > 0 and det["pixel"] > 0
+    assert det["prism_thickness"] > 0 and det["fov"] > 0 and det["pixel"] > 0 and det["display"] > 0
     assert sum(v for k, v in det.items() if k.startswith("aperture_")) > 0  # rays within the margin
     for j in range(len(x0)):
         h = 1e-6 * max(1.0, abs(x0[j])) if M.cols[j].state is None else 1e-4
@@ -518,3 +518,29 @@ def test_hinge_model_rows_equal_the_penalty_rows_with_a_jacobian_everywhere(scen
             moved.add(c.name)
         np.testing.assert_allclose(G[:, j], fd, rtol=0, atol=1e-4 * scale + 1e-6, err_msg=c.label)
     assert {"S3.x2y0", "object.distance", "S4.position_z"} <= moved
+
+
+@pytest.mark.parametrize("ppe, renders", [(125, True), (122, True), (121, False), (136, True), (137, False)])
+def test_display_mismatch_is_the_renderers_rule(scenes, ppe, renders):
+    """``display_mismatch`` (the ``display`` block's figure) is over 1 exactly where the
+    renderer refuses the design (its outer EIs would fall off the display, or the display
+    would hold a whole EI for no lenslet): the shipped wearable's layout (p_EI 1.034 x 1.033 mm
+    at 1 D) against displays of 121 to 137 px of 8 µm per EI: 17 EIs allow 122 to 136)."""
+    from lfsim.design import DesignError
+    from lfsim.ini.model import IniModel
+    from lfsim.render.display import check_display_size
+
+    d = lfsim.load(scenes / "ini_wearable_optimized.toml")
+    d.ini.pixels_per_ei = (ppe, ppe)
+    mo = IniModel(d)
+    k = 1
+    mis = IniMerit.display_mismatch(mo, np.array([mo.state(k).p_ei]))[0]
+    want = np.array([mo.arr.m, mo.arr.n]) * np.abs(np.abs(mo.state(k).p_ei) - ppe * 0.008) / np.abs(mo.state(k).p_ei)
+    assert mis == pytest.approx(want, rel=1e-14)
+    if renders:
+        check_display_size(mo, k, mo.state(k).p_ei)
+        assert mis.max() <= 1.0
+    else:
+        with pytest.raises(DesignError, match="pixels_per_ei"):
+            check_display_size(mo, k, mo.state(k).p_ei)
+        assert mis.max() > 1.0

@@ -42,6 +42,9 @@ Schema (units mm, degrees, diopters)::
                              # reports it (first-order); absent: off
     pixel_arcmin = [3.0, 3.0]  # optional: one display pixel (x, y) seen from the window in
                              # every CDP state, as `lfsim ini` reports it; absent: off
+    display_mismatch_max = 0.5  # optional: how many EIs the layout of Eq. 2 (M EIs of p_EI) may
+                             # differ from the display (M x pixels_per_ei x pixel_pitch) across it,
+                             # per CDP state and axis; the renderer refuses more than 1; absent: off
     min_center_thickness = 0.3    # mm, glass, >= 0
     min_edge_thickness = 0.3      # mm, glass, >= 0
     min_air_gap = 0.1             # mm, >= 0
@@ -66,6 +69,7 @@ Schema (units mm, degrees, diopters)::
     efl = 10.0
     fov = 10.0               # per % of the FOV target
     pixel = 10.0             # per % of the pixel target
+    display = 10.0           # per % of one EI beyond display_mismatch_max
     thickness = 1.0
     tir = 1.0
     package = 1.0            # per µm beyond a package limit
@@ -163,6 +167,7 @@ class OptimizeTargets:
     efl_mm: float | None = None
     fov_deg: tuple[float, float] | None = None
     pixel_arcmin: tuple[float, float] | None = None
+    display_mismatch_max: float | None = None
     min_center_thickness: float = 0.3
     min_edge_thickness: float = 0.3
     min_air_gap: float = 0.1
@@ -206,6 +211,7 @@ class OptimizeWeights:
     efl: float = 10.0
     fov: float = 10.0
     pixel: float = 10.0
+    display: float = 10.0
     thickness: float = 1.0
     tir: float = 1.0
     package: float = 1.0
@@ -396,6 +402,11 @@ def _targets(ctx, tab, p="optimize.targets") -> OptimizeTargets:
                                                            or not 0.0 < a < 600.0 for a in v)):
             raise ctx.err(f"{p}.pixel_arcmin", v, "expected [x, y], two pixel angles in arcmin in (0, 600)")
         kw["pixel_arcmin"] = (float(v[0]), float(v[1]))
+    if "display_mismatch_max" in tab:
+        v = tab["display_mismatch_max"]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 <= v <= 1.0:
+            raise ctx.err(f"{p}.display_mismatch_max", v, "expected a number of elemental images in [0, 1]")
+        kw["display_mismatch_max"] = float(v)
     if "efl_mm" in tab:
         v = tab["efl_mm"]
         if isinstance(v, float) and math.isnan(v):

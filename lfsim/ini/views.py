@@ -170,7 +170,7 @@ class StackedViews:
         (V, S, F, 2), ``par_c`` (V, S, F, 2) paraxial retinal tangents of the chief rays,
         ``par_m`` (V, S, F, 4, 2) paraxial VW positions of the four marginal rays, ``d_v``
         (V, S), ``efl`` (V, n_states), ``fov`` (V, n_states, 2) in degrees, ``pixel`` (V, n_states, 2)
-        in arcmin. ``display``:
+        in arcmin, ``ei_pitch`` (V, n_states, 2) in mm. ``display``:
         the rays' display points when they are given (the traced ones), else the views'
         own layout."""
         mo = self.model
@@ -196,4 +196,6 @@ class StackedViews:
             efl = -0.5 * (1.0 / self.JG[:, :, 2, 0] + 1.0 / self.JG[:, :, 3, 1])
         fov = np.stack([self.fov_deg(k) for k in range(len(mo.depths))], axis=1)
         pixel = np.stack([self.pixel_arcmin(k) for k in range(len(mo.depths))], axis=1)
-        return dict(display=display, par_c=par_c, par_m=par_m, d_v=d_v, efl=efl, fov=fov, pixel=pixel)
+        ei_pitch = np.stack([self.ei_pitch(k) for k in range(len(mo.depths))], axis=1)
+        return dict(display=display, par_c=par_c, par_m=par_m, d_v=d_v, efl=efl, fov=fov, pixel=pixel,
+                    ei_pitch=ei_pitch)

@@ -33,6 +33,8 @@ aperture      pupil rays beyond a clear aperture of the relay or eyepiece
 efl           relay–eyepiece focal length per CDP state, % from its target
 fov           full FOV per CDP state and axis, % from ``fov_deg``
 pixel         one display pixel seen from the window per CDP state and axis, % from ``pixel_arcmin``
+display       the EI layout (Eq. 2) wider or narrower than the display across the array, per CDP
+              state and axis, beyond ``display_mismatch_max`` EIs, % of one EI (a hinge)
 thickness     centre thickness of glass / air gaps below their minimum, and
               edge thickness of glass elements at their clear radius, µm
 package       the mechanical package (:mod:`lfsim.ini.package`) beyond its limits:
@@ -148,6 +150,7 @@ class _Sample:
     defl: np.ndarray | None = None
     dfov: np.ndarray | None = None
     dpixel: np.ndarray | None = None
+    dei_pitch: np.ndarray | None = None
     figures: dict = field(default_factory=dict)
 
 
@@ -535,7 +538,8 @@ class IniMerit:
         for block in (self._efl, self._fov, self._pixel):
             for name, r, j in block(st):
                 rows.add(name, r, j)
-        for block in (self._thickness, self._edge_thickness, self._prism_thickness_block, self._package):
+        for block in (self._thickness, self._edge_thickness, self._prism_thickness_block, self._package,
+                      self._display):
             for name, r, j in block(st):
                 if self.hinge_model:  # signed excess with its Jacobian everywhere (the step model's)
                     rows.add_hinge(name, r, j)
@@ -560,7 +564,8 @@ class IniMerit:
                        **self._colour_details(fig),
                        rays=self.rays, rays_lost=int(fig["lost"].sum()),
                        efl_mm=[float(v) for v in ref["efl"]], fov_deg=ref["fov"].tolist(),
-                       pixel_arcmin=ref["pixel"].tolist())
+                       pixel_arcmin=ref["pixel"].tolist(),
+                       display_mismatch_ei=self.display_mismatch(model, ref["ei_pitch"]).tolist())
         self.details = details
         return r_all, J_all, details
 
@@ -581,7 +586,7 @@ class IniMerit:
         dsx = ds.reshape(S, F, R, 2, K) if dense and derivatives else None
         pos, r, dpos, dr = _retinal(J, (S, F, R), D, K, derivatives, dsx)
         nrec = J.surf.shape[1]
-        per_state = ("efl", "fov", "pixel")  # references per CDP state, not per sub-system
+        per_state = ("efl", "fov", "pixel", "ei_pitch")  # references per CDP state, not per sub-system
         cut = {key: (v if key in per_state else v[sl]) for key, v in ref.items()}
         st = _Sample(model=model, x=x, derivatives=derivatives, K=K, subs=part, ref=cut, S=S, F=F, R=R,
                      S_all=len(subs), dense=dense, ok=ok, pos=pos, r=r, surf=J.surf.reshape(S, F, R, nrec, 2),
@@ -599,6 +604,7 @@ class IniMerit:
             st.dpar_m = dref["par_m"][sl] if dref else np.zeros((S, F, 4, 2, K))
             st.dd_v = dref["d_v"][sl] if dref else np.zeros((S, K))
             st.defl, st.dfov, st.dpixel = dref.get("efl"), dref.get("fov"), dref.get("pixel")
+            st.dei_pitch = dref.get("ei_pitch")
         else:  # no columns: the derivative variants of lfsim.metrics run with K = 0
             st.dr, st.dpos = np.zeros(r.shape + (0,)), np.zeros(pos.shape + (0,))
             st.dpar_c, st.dpar_m, st.dd_v = np.zeros((S, F, 2, 0)), np.zeros((S, F, 4, 2, 0)), np.zeros((S, 0))
@@ -848,6 +854,39 @@ class IniMerit:
         f = st.ref["pixel"]  # (states, 2)
         jac = st.dpixel / tgt[None, :, None] * 100.0 * w.pixel if st.derivatives and st.K else None
         yield "pixel", (f - tgt) / tgt * 100.0 * w.pixel, jac
+
+    @staticmethod
+    def display_mismatch(model: IniModel, p_ei) -> np.ndarray:
+        """(states, 2): how many EIs the layout of ``M`` EIs of pitch ``p_ei`` (states, 2;
+        Eq. 2) is wider or narrower than the display's ``M·pixels_per_ei·pixel_pitch``,
+        ``M·|p_EI − px·pitch| / |p_EI|``: the outer EIs are cut or widened by half of it at each
+        edge, and the renderer refuses a design over 1 (:func:`lfsim.render.display.check_display_size`)."""
+        spec, count = model.spec, np.array([model.arr.m, model.arr.n], dtype=np.float64)
+        have = np.array(spec.pixels_per_ei, dtype=np.float64) * spec.pixel_pitch
+        q = np.abs(np.asarray(p_ei, dtype=np.float64))
+        return count * np.abs(q - have) / q
+
+    def _display(self, st: _Sample):
+        """The EI layout against the display per CDP state and axis (first-order model):
+        :meth:`display_mismatch` beyond ``display_mismatch_max``, % of one EI. Its derivative:
+        ``M·h·sign(|p| − h)/p²`` times that of ``|p_EI|`` (``h`` the display's EI width)."""
+        t, w, m = self.spec.targets, self.spec.weights, st.model
+        if t.display_mismatch_max is None:
+            return
+        p = np.asarray(st.ref["ei_pitch"], dtype=np.float64)  # (states, 2)
+        q = np.abs(p)
+        have = np.array(m.spec.pixels_per_ei, dtype=np.float64) * m.spec.pixel_pitch
+        count = np.array([m.arr.m, m.arr.n], dtype=np.float64)
+        g = (self.display_mismatch(m, p) - t.display_mismatch_max) * 100.0 * w.display
+        jac = np.zeros(g.shape + (st.K,)) if st.derivatives else None
+        if st.derivatives and st.K:
+            dq = np.sign(p)[..., None] * st.dei_pitch  # (states, 2, K)
+            jac = (count * have * np.sign(q - have) / q ** 2)[..., None] * dq * 100.0 * w.display
+        if self.hinge_model:
+            yield "display", g, jac
+            return
+        over = g > 0.0
+        yield "display", np.where(over, g, 0.0), (np.where(over[..., None], jac, 0.0) if jac is not None else None)
 
     def _thickness(self, st: _Sample):
         """Centre thickness of variable glass thicknesses and air gaps below their minimum, µm."""
