@@ -367,3 +367,21 @@ def test_the_default_content_is_found_outside_the_checkout(tmp_path, monkeypatch
     path = content_path(DEFAULT_CONTENT)
     assert path != DEFAULT_CONTENT and load_content(path).view.design
     assert content_path("other.toml") == "other.toml"  # a file the user names is theirs to find
+
+
+def test_optimize_says_when_the_renderer_will_refuse_its_output(scenes, tmp_path):
+    """``lfsim optimize`` checks the design it wrote against the renderer's display rule and
+    warns in one line naming the key (a stage can grow the EI layout past the display)."""
+    import tomllib
+
+    import tomli_w
+
+    from lfsim.cli.ini import _render_refusal
+
+    raw = tomllib.loads((scenes / "ini_wearable_optimized.toml").read_text())
+    assert _render_refusal(scenes / "ini_wearable_optimized.toml") is None
+    raw["ini"]["pixels_per_ei"] = [121, 121]  # 17 x 121 px of 8 µm: 16.5 mm under a 17.6 mm layout
+    p = tmp_path / "narrow.toml"
+    p.write_text(tomli_w.dumps(raw))
+    msg = _render_refusal(p)
+    assert msg is not None and "\n" not in msg and "ini.pixels_per_ei" in msg and str(p) in msg

@@ -233,6 +233,11 @@ def cmd_optimize(args) -> int:
                    resume=args.resume, progress=not args.json and sys.stderr.isatty(), log=log,
                    analyze_stride=stride)
     out = Path(args.out)
+    refused = _render_refusal(out / doc["optimized_design"]) if design.ini is not None else None
+    if refused:  # written, as optimized, but the renderer will not take it: say so, and how to hold it
+        doc["render_refused"] = refused
+        print(f"lfsim optimize: warning: {refused} (lfsim focal-stack refuses this design; "
+              "[optimize.targets] display_mismatch_max holds the layout to the display)", file=sys.stderr)
     if args.json:
         print(_dump(doc))
         return 0
@@ -250,6 +255,22 @@ def cmd_optimize(args) -> int:
             print(f"  RMS spot at field {f:g}: {shown[0]} -> {shown[1]}")
     print(f"wrote {out / doc['optimized_design']}, history.json, " + ", ".join(doc["plots"]))
     return 0
+
+
+def _render_refusal(path) -> str | None:
+    """The renderer's one-line refusal of the written design's EI layout against its display
+    (:func:`lfsim.render.display.check_display_size`, every CDP state), or None."""
+    from ..design import DesignError
+    from ..ini.model import IniModel
+    from ..render.display import check_display_size
+
+    model = IniModel(load(path))
+    try:
+        for k in range(len(model.depths)):
+            check_display_size(model, k, model.ei_pitch(k))
+    except DesignError as e:
+        return str(e)
+    return None
 
 
 def register(sub) -> None:
