@@ -522,8 +522,8 @@ def test_hinge_model_rows_equal_the_penalty_rows_with_a_jacobian_everywhere(scen
 
 @pytest.mark.parametrize("ppe, renders", [(125, True), (122, True), (121, False), (136, True), (137, False)])
 def test_display_mismatch_is_the_renderers_rule(scenes, ppe, renders):
-    """``display_mismatch`` (the ``display`` block's figure) is over 1 exactly where the
-    renderer refuses the design (its outer EIs would fall off the display, or the display
+    """``IniModel.display_mismatch`` (the ``display`` block's figure and the renderer's check)
+    is over 1 exactly where the renderer refuses the design (its outer EIs would fall off the display, or the display
     would hold a whole EI for no lenslet): the shipped wearable's layout (p_EI 1.034 x 1.033 mm
     at 1 D) against displays of 121 to 137 px of 8 µm per EI: 17 EIs allow 122 to 136)."""
     from lfsim.design import DesignError
@@ -534,7 +534,7 @@ def test_display_mismatch_is_the_renderers_rule(scenes, ppe, renders):
     d.ini.pixels_per_ei = (ppe, ppe)
     mo = IniModel(d)
     k = 1
-    mis = IniMerit.display_mismatch(mo, np.array([mo.state(k).p_ei]))[0]
+    mis = mo.display_mismatch(np.array([mo.state(k).p_ei]))[0]
     want = np.array([mo.arr.m, mo.arr.n]) * np.abs(np.abs(mo.state(k).p_ei) - ppe * 0.008) / np.abs(mo.state(k).p_ei)
     assert mis == pytest.approx(want, rel=1e-14)
     if renders:

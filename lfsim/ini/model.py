@@ -396,6 +396,22 @@ class IniModel:
                             np.array([self.n_ref, self.n_ref, self.n_ref + 1]))
         return np.array([a[1, 0] - a[0, 0], a[2, 1] - a[0, 1]])
 
+    def display_ei(self) -> tuple[np.ndarray, np.ndarray]:
+        """(EIs per axis (2,), one EI's width on the display (2,), mm): the display holds
+        ``M·pixels_per_ei·pixel_pitch`` by ``N·…``."""
+        count = np.array([self.arr.m, self.arr.n], dtype=np.float64)
+        return count, np.array(self.spec.pixels_per_ei, dtype=np.float64) * self.spec.pixel_pitch
+
+    def display_mismatch(self, p_ei) -> np.ndarray:
+        """How many EIs a layout of EI pitch ``p_ei`` (..., 2; Eq. 2) is wider or narrower than
+        the display across the array, ``M·|p_EI − px·pitch| / |p_EI|`` per axis: the outer EIs are
+        cut or widened by half of it at each edge (the renderer refuses more than 1:
+        :func:`lfsim.render.display.check_display_size`)."""
+        count, have = self.display_ei()
+        q = np.abs(np.asarray(p_ei, dtype=np.float64))
+        with np.errstate(divide="ignore", invalid="ignore"):  # p_EI 0: inf, refused
+            return count * np.abs(q - have) / q
+
     def at_wavelength(self, wavelength_nm: float) -> IniModel:
         """The same design traced at ``wavelength_nm``, the tunable lens held at this model's
         powers (an ideal lens: no colour of its own), so that the two differ by the glasses'

@@ -565,7 +565,7 @@ class IniMerit:
                        rays=self.rays, rays_lost=int(fig["lost"].sum()),
                        efl_mm=[float(v) for v in ref["efl"]], fov_deg=ref["fov"].tolist(),
                        pixel_arcmin=ref["pixel"].tolist(),
-                       display_mismatch_ei=self.display_mismatch(model, ref["ei_pitch"]).tolist())
+                       display_mismatch_ei=model.display_mismatch(ref["ei_pitch"]).tolist())
         self.details = details
         return r_all, J_all, details
 
@@ -855,29 +855,17 @@ class IniMerit:
         jac = st.dpixel / tgt[None, :, None] * 100.0 * w.pixel if st.derivatives and st.K else None
         yield "pixel", (f - tgt) / tgt * 100.0 * w.pixel, jac
 
-    @staticmethod
-    def display_mismatch(model: IniModel, p_ei) -> np.ndarray:
-        """(states, 2): how many EIs the layout of ``M`` EIs of pitch ``p_ei`` (states, 2;
-        Eq. 2) is wider or narrower than the display's ``M·pixels_per_ei·pixel_pitch``,
-        ``M·|p_EI − px·pitch| / |p_EI|``: the outer EIs are cut or widened by half of it at each
-        edge, and the renderer refuses a design over 1 (:func:`lfsim.render.display.check_display_size`)."""
-        spec, count = model.spec, np.array([model.arr.m, model.arr.n], dtype=np.float64)
-        have = np.array(spec.pixels_per_ei, dtype=np.float64) * spec.pixel_pitch
-        q = np.abs(np.asarray(p_ei, dtype=np.float64))
-        return count * np.abs(q - have) / q
-
     def _display(self, st: _Sample):
         """The EI layout against the display per CDP state and axis (first-order model):
-        :meth:`display_mismatch` beyond ``display_mismatch_max``, % of one EI. Its derivative:
-        ``M·h·sign(|p| − h)/p²`` times that of ``|p_EI|`` (``h`` the display's EI width)."""
+        :meth:`IniModel.display_mismatch` beyond ``display_mismatch_max``, % of one EI. Its
+        derivative: ``M·h·sign(|p| − h)/p²`` times that of ``|p_EI|`` (``h`` the display's EI width)."""
         t, w, m = self.spec.targets, self.spec.weights, st.model
         if t.display_mismatch_max is None:
             return
         p = np.asarray(st.ref["ei_pitch"], dtype=np.float64)  # (states, 2)
         q = np.abs(p)
-        have = np.array(m.spec.pixels_per_ei, dtype=np.float64) * m.spec.pixel_pitch
-        count = np.array([m.arr.m, m.arr.n], dtype=np.float64)
-        g = (self.display_mismatch(m, p) - t.display_mismatch_max) * 100.0 * w.display
+        count, have = m.display_ei()
+        g = (m.display_mismatch(p) - t.display_mismatch_max) * 100.0 * w.display
         jac = np.zeros(g.shape + (st.K,)) if st.derivatives else None
         if st.derivatives and st.K:
             dq = np.sign(p)[..., None] * st.dei_pitch  # (states, 2, K)

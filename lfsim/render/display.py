@@ -32,11 +32,10 @@ def check_display_size(model, k: int, p_ei) -> None:
     from ..design.errors import DesignError
 
     spec, arr = model.spec, model.arr
-    have = [spec.pixels_per_ei[i] * spec.pixel_pitch for i in range(2)]
-    count = (arr.m, arr.n)
+    _, have = model.display_ei()
+    mismatch = model.display_mismatch(np.asarray(p_ei, dtype=np.float64))
     for i in range(2):
-        need = abs(float(p_ei[i]))
-        if not count[i] * abs(need - have[i]) <= need:
+        if not mismatch[i] <= 1.0:
             raise DesignError(
                 model.file, "ini.pixels_per_ei", list(spec.pixels_per_ei),
                 f"{arr.m} x {arr.n} elemental images of {abs(p_ei[0]):.5g} x {abs(p_ei[1]):.5g} mm "
