@@ -401,3 +401,53 @@ def test_diffraction_mtf_of_a_pupil_sliver_is_zero_not_an_error():
     assert np.all(out[1] == 0.0)
     # beam 0: the diffraction-limited square pupil, 1 - nu*lambda/w
     np.testing.assert_allclose(out[0], (1.0 - freqs * 550e-6 / 1.0)[:, None].repeat(2, 1), atol=1e-9)
+
+
+def test_distortion_terms_recover_a_known_field_and_lower_the_degree_when_undetermined():
+    """A displacement field built from chosen monomials is fitted back exactly (each
+    coefficient is the term's displacement at the grid's edge, in degrees); with fewer
+    points than the cubic's 10 terms the fit falls back to a lower degree."""
+    gx, gy = np.meshgrid(np.linspace(-15.0, 15.0, 9), np.linspace(-9.0, 9.0, 5))
+    theta = np.column_stack([gx.ravel(), gy.ravel()])  # paraxial angles, deg
+    u = theta / np.array([15.0, 9.0])
+    smile, keystone, scale_y = -1.2, 0.4, 0.05
+    e = np.column_stack([keystone * u[:, 0] * u[:, 1], smile * u[:, 0] ** 2 + scale_y * u[:, 1]])
+    r_par = np.tan(np.radians(theta))
+    r_real = np.tan(np.radians(theta + e))
+    t = distortion.distortion_terms(r_real, r_par)
+    assert t["degree"] == 3 and t["normalization_deg"] == pytest.approx([15.0, 9.0])
+    assert t["dy"]["x2"] == pytest.approx(smile, abs=1e-12)
+    assert t["dx"]["xy"] == pytest.approx(keystone, abs=1e-12)
+    assert t["dy"]["y"] == pytest.approx(scale_y, abs=1e-12)
+    others = [v for a in "xy" for n, v in t[f"d{a}"].items() if (a, n) not in {("y", "x2"), ("x", "xy"), ("y", "y")}]
+    assert np.max(np.abs(others)) < 1e-12 and t["residual_rms_deg"] < 1e-12
+    # The terms' own RMS displacements, largest first: the smile's is |c|·RMS(x²) over the grid.
+    assert next(iter(t["rms_deg"])) == "dy·x2"
+    assert t["rms_deg"]["dy·x2"] == pytest.approx(abs(smile) * np.sqrt(np.mean(u[:, 0] ** 4)))
+    # 6 points cannot determine the cubic (10 terms): the quadratic (6) is fitted instead.
+    few = distortion.distortion_terms(r_real[:6], r_par[:6])
+    assert few is not None and few["degree"] < 3
+    assert distortion.distortion_terms(np.zeros((0, 2)), np.zeros((0, 2))) is None
+
+
+def test_gd_terms_of_a_coaxial_design_are_a_radial_cubic(scenes, tmp_path):
+    """On a rotationally symmetric design GD's field is radial, e·r²·(x, y) to third order: the
+    fit's cubic terms must stand (within the angle-vs-tangent difference) in the ratios that
+    gives (dx·xy2 / dx·x3 = hy²/hx², dy·x2y / dy·y3 = hx²/hy², dx·x3 / hx³ = dy·y3 / hy³), and
+    no plane-asymmetric term
+    (dx even in x, dy odd in x) may appear. `lfsim analyze` writes them per CDP state."""
+    from lfsim.analysis.ini_analysis import analyze
+
+    doc = analyze(lfsim.load(scenes / "ini_coaxial.toml"), tmp_path, stride=(2, 2), symmetry="none", plots=False)
+    for b in doc["by_depth"].values():
+        t = b["gd_terms"]
+        hx, hy = t["normalization_deg"]
+        dx, dy = t["dx"], t["dy"]
+        assert abs(dx["x3"]) > 0.05  # a distortion worth testing (0.21 deg at the edge)
+        assert dx["xy2"] / dx["x3"] == pytest.approx((hy / hx) ** 2, rel=0.03)
+        # Radial holds in the tangent plane; the fit's variable is the angle, and tan θ/θ
+        # reaches 1.023 at the 15 deg edge, squared in x2y: about 5 % more than the ratio.
+        assert dy["x2y"] / dy["y3"] == pytest.approx((hx / hy) ** 2, rel=0.08)
+        assert dx["x3"] / hx ** 3 == pytest.approx(dy["y3"] / hy ** 3, rel=0.03)
+        asym = [dx[n] for n in ("1", "y", "x2", "y2", "x2y", "y3")] + [dy[n] for n in ("x", "xy", "x3", "xy2")]
+        assert np.max(np.abs(asym)) < 1e-9

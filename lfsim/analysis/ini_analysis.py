@@ -324,6 +324,13 @@ def _window_crossing(res: dict, sel: np.ndarray) -> dict | None:
     return footprint.axis_crossing(b.pos[sel, 0, ch][:, 0], d[:, :2] / d[:, 2:3])
 
 
+def _gd_terms(res: dict, sel: np.ndarray) -> dict | None:
+    """GD's displacement field over the sub-systems ``sel`` (one CDP state) as a cubic in the
+    field (:func:`lfsim.metrics.distortion.distortion_terms`): smile, keystone, scale, …"""
+    ch = res["sets"].slices["chief"]
+    return distortion.distortion_terms(res["r"][sel, 0, ch][:, 0], res["r_par"][sel, 0, ch][:, 0])
+
+
 def summarize(res: dict, package: bool = True) -> dict:
     """The ``metrics.json`` document (the contract in docs/contracts.md plus per-sub-system details).
 
@@ -383,6 +390,7 @@ def summarize(res: dict, package: bool = True) -> dict:
             "pa_mean": _masked(np.mean, res["pa"][sel], pa_ok[sel]),
             "pa_shape_max": _masked(np.max, res["pa_shape"][sel], pa_ok[sel]),
             "viewing_window_real": _window_crossing(res, sel & gd_ok),
+            "gd_terms": _gd_terms(res, sel & gd_ok),
             "lateral_colour_max_arcmin": _masked(np.max, lc["arcmin"][sel], lc["ok"][sel]) if lc else None,
             "lateral_colour_mean_arcmin": _masked(np.mean, lc["arcmin"][sel], lc["ok"][sel]) if lc else None,
             "first_order": res["states"][k].as_dict(),

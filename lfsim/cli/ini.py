@@ -131,6 +131,9 @@ def cmd_analyze(args) -> int:
               f"RMS spot mean {_num(b['rms_spot_mean_arcmin'], '.3f')}' max {_num(b['rms_spot_max_arcmin'], '.3f')}', "
               f"GD max {_num(b['gd_max_deg'], '.3f')} deg, PA max {_num(b['pa_max'], '.3f')}"
               + _first_order_line(b.get("first_order")) + _window_line(b.get("viewing_window_real")))
+    for D, b in doc["by_depth"].items():
+        if b.get("gd_terms"):
+            print(f"  GD terms at {D} D: " + _gd_terms_line(b["gd_terms"]))
     if doc.get("package"):
         print("  " + _package_line(doc["package"]))
     print(f"wrote {args.out}/metrics.json" + (", " + ", ".join(doc.get("plots", [])) if doc.get("plots") else ""))
@@ -149,6 +152,19 @@ def _first_order_line(fo: dict | None) -> str:
     if None not in (cx, cy, D) and max(abs(cx - D), abs(cy - D)) > 0.005:  # an astigmatic CDP
         line += f", paraxial CDP x {cx:.2f} y {cy:.2f} D"
     return line
+
+
+def _gd_terms_line(t: dict, count: int = 3) -> str:
+    """``dy·x2 -1.279 (0.57 RMS), dx·xy +0.426 (0.16), … deg at the edge of the 15.1 x 9.0 deg
+    grid; residual RMS 0.011 deg``: the largest terms of GD's displacement field
+    (``metrics.json`` ``gd_terms``), for the console."""
+    parts = []
+    for key, rms in list(t["rms_deg"].items())[:count]:
+        axis, name = key.split("·")
+        parts.append(f"{key} {t[axis][name]:+.3f} ({rms:.3f} RMS)")
+    hx, hy = t["normalization_deg"]
+    return (", ".join(parts) + f" deg at the edge of the {hx:.1f} x {hy:.1f} deg grid; "
+            f"residual RMS {t['residual_rms_deg']:.3f} deg")
 
 
 def _window_line(w: dict | None) -> str:

@@ -81,3 +81,69 @@ def local_distortion_jvp(r_real, dr_real, r_paraxial, dr_paraxial, center: int =
     dden = np.einsum("...a,...ak->...k", vp / dens[..., None], dvp)
     dld = np.where(good[..., None], (dnum - ld[..., None] * dden) / dens[..., None], 0.0)
     return ld, dld
+
+
+def _monomials(degree: int) -> list[tuple[int, int]]:
+    """(i, j) of the monomials x^i·y^j of total degree 0 … ``degree``, in the order
+    1, x, y, x², xy, y², x³, x²y, xy², y³, …"""
+    return [(t - j, j) for t in range(degree + 1) for j in range(t + 1)]
+
+
+def _monomial_name(i: int, j: int) -> str:
+    part = lambda v, p: "" if p == 0 else (v if p == 1 else f"{v}{p}")  # noqa: E731
+    return (part("x", i) + part("y", j)) or "1"
+
+
+def distortion_terms(r_real, r_paraxial, degree: int = 3) -> dict | None:
+    """GD's displacement field (Eq. 11) as a polynomial in the field: which distortion it is.
+
+    ``r_real``, ``r_paraxial`` (P, 2): retinal tangents of the EI centres' real and
+    paraxial chief rays (the two sides of :func:`gd_deg`) over the lenslets of one CDP
+    state. The displacement ``e = atan(r) − atan(r_par)`` (degrees, x and y) is fitted by
+    least squares with the monomials ``x^i·y^j`` (i + j ≤ ``degree``) of the normalized
+    paraxial field ``x = θx/hx``, ``y = θy/hy``, where ``hx``, ``hy`` are the largest
+    paraxial angles of the points: each coefficient is that term's displacement at the
+    grid's edge, in degrees. In a design symmetric about its y–z plane, ``dx`` has only
+    x-odd terms and ``dy`` only x-even ones; there ``dy·x2`` is the smile (the rows
+    bow), ``dx·xy`` with ``dy·y2`` the keystone, ``dx·x`` and ``dy·y`` a scale error
+    of the paraxial model per axis, and ``dx·x3 + dx·xy2``, ``dy·x2y + dy·y3`` in the
+    ratios ``hy²/hx²`` and ``hx²/hy²`` a rotationally symmetric third-order distortion.
+
+    The degree is lowered until the fit is determined (at least as many points as
+    terms, full rank); None where not even the constant is (no point).
+    Returns ``{"degree", "normalization_deg": [hx, hy], "dx": {name: c}, "dy": {…},
+    "rms_deg": {"dy·x2": …}, "residual_rms_deg", "residual_max_deg"}``, ``rms_deg``
+    being each term's own RMS displacement over the points (degrees), largest first.
+    """
+    r = np.asarray(r_real, dtype=np.float64).reshape(-1, 2)
+    p = np.asarray(r_paraxial, dtype=np.float64).reshape(-1, 2)
+    good = np.all(np.isfinite(r), axis=1) & np.all(np.isfinite(p), axis=1)
+    r, p = r[good], p[good]
+    if len(p) == 0:
+        return None
+    theta = np.degrees(np.arctan(p))
+    e = np.degrees(np.arctan(r)) - theta
+    h = np.max(np.abs(theta), axis=0)
+    h = np.where(h > 0, h, 1.0)
+    u = theta / h
+    for deg in range(int(degree), -1, -1):
+        terms = _monomials(deg)
+        A = np.stack([u[:, 0] ** i * u[:, 1] ** j for i, j in terms], axis=1)
+        if len(u) >= len(terms) and np.linalg.matrix_rank(A) == len(terms):
+            break
+    else:  # pragma: no cover - the constant always fits one point
+        return None
+    coef, *_ = np.linalg.lstsq(A, e, rcond=None)  # (T, 2)
+    resid = e - A @ coef
+    names = [_monomial_name(i, j) for i, j in terms]
+    rms = {f"d{a}·{name}": float(np.sqrt(np.mean((A[:, t] * coef[t, ax]) ** 2)))
+           for ax, a in enumerate("xy") for t, name in enumerate(names)}
+    return {
+        "degree": deg,
+        "normalization_deg": [float(v) for v in h],
+        "dx": {n: float(c) for n, c in zip(names, coef[:, 0])},
+        "dy": {n: float(c) for n, c in zip(names, coef[:, 1])},
+        "rms_deg": dict(sorted(rms.items(), key=lambda kv: -kv[1])),
+        "residual_rms_deg": float(np.sqrt(np.mean(np.sum(resid ** 2, axis=1)))),
+        "residual_max_deg": float(np.max(np.hypot(resid[:, 0], resid[:, 1]))),
+    }
