@@ -520,20 +520,29 @@ def test_hinge_model_rows_equal_the_penalty_rows_with_a_jacobian_everywhere(scen
     assert {"S3.x2y0", "object.distance", "S4.position_z"} <= moved
 
 
-@pytest.mark.parametrize("ppe, renders", [(125, True), (122, True), (121, False), (136, True), (137, False)])
-def test_display_mismatch_is_the_renderers_rule(scenes, ppe, renders):
+@pytest.mark.parametrize("edge, step, renders", [(None, 0, True), ("lo", 0, True), ("lo", -1, False),
+                                                  ("hi", 0, True), ("hi", 1, False)])
+def test_display_mismatch_is_the_renderers_rule(scenes, edge, step, renders):
     """``IniModel.display_mismatch`` (the ``display`` block's figure and the renderer's check)
     is over 1 exactly where the renderer refuses the design (its outer EIs would fall off the display, or the display
-    would hold a whole EI for no lenslet): the shipped wearable's layout (p_EI 1.034 x 1.033 mm
-    at 1 D) against displays of 121 to 137 px of 8 µm per EI: 17 EIs allow 122 to 136)."""
+    would hold a whole EI for no lenslet): the shipped wearable's layout (p_EI about 1.04 mm at 1 D)
+    against displays of 8 µm pixels whose EI width w lies just inside or just outside
+    p_EI·(1 ± 1/M) on the binding axis (the closed form of M·|p_EI − w|/p_EI ≤ 1), and 125 px."""
     from lfsim.design import DesignError
     from lfsim.ini.model import IniModel
     from lfsim.render.display import check_display_size
 
     d = lfsim.load(scenes / "ini_wearable_optimized.toml")
+    k = 1
+    mo0 = IniModel(d)
+    p0 = np.abs(mo0.state(k).p_ei)
+    count = np.array([mo0.arr.m, mo0.arr.n], dtype=np.float64)
+    lo = int(np.max(np.ceil(p0 * (1 - 1 / count) / 0.008 - 1e-9)))
+    hi = int(np.min(np.floor(p0 * (1 + 1 / count) / 0.008 + 1e-9)))
+    assert lo < 125 < hi
+    ppe = 125 if edge is None else (lo if edge == "lo" else hi) + step
     d.ini.pixels_per_ei = (ppe, ppe)
     mo = IniModel(d)
-    k = 1
     mis = mo.display_mismatch(np.array([mo.state(k).p_ei]))[0]
     want = np.array([mo.arr.m, mo.arr.n]) * np.abs(np.abs(mo.state(k).p_ei) - ppe * 0.008) / np.abs(mo.state(k).p_ei)
     assert mis == pytest.approx(want, rel=1e-14)
