@@ -160,8 +160,8 @@ def _gd_terms_line(t: dict, count: int = 3) -> str:
     (``metrics.json`` ``gd_terms``), for the console."""
     parts = []
     for key, rms in list(t["rms_deg"].items())[:count]:
-        axis, name = key.split("·")
-        parts.append(f"{key} {t[axis][name]:+.3f} ({rms:.3f} RMS)")
+        axis, name = key.split("_")
+        parts.append(f"{axis}·{name} {t[axis][name]:+.3f} ({rms:.3f} RMS)")
     hx, hy = t["normalization_deg"]
     return (", ".join(parts) + f" deg at the edge of the {hx:.1f} x {hy:.1f} deg grid; "
             f"residual RMS {t['residual_rms_deg']:.3f} deg")

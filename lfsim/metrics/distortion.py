@@ -89,9 +89,12 @@ def _monomials(degree: int) -> list[tuple[int, int]]:
     return [(t - j, j) for t in range(degree + 1) for j in range(t + 1)]
 
 
+def _power(v: str, p: int) -> str:
+    return "" if p == 0 else (v if p == 1 else f"{v}{p}")
+
+
 def _monomial_name(i: int, j: int) -> str:
-    part = lambda v, p: "" if p == 0 else (v if p == 1 else f"{v}{p}")  # noqa: E731
-    return (part("x", i) + part("y", j)) or "1"
+    return (_power("x", i) + _power("y", j)) or "1"
 
 
 def distortion_terms(r_real, r_paraxial, degree: int = 3) -> dict | None:
@@ -112,8 +115,9 @@ def distortion_terms(r_real, r_paraxial, degree: int = 3) -> dict | None:
     The degree is lowered until the fit is determined (at least as many points as
     terms, full rank); None where not even the constant is (no point).
     Returns ``{"degree", "normalization_deg": [hx, hy], "dx": {name: c}, "dy": {…},
-    "rms_deg": {"dy·x2": …}, "residual_rms_deg", "residual_max_deg"}``, ``rms_deg``
-    being each term's own RMS displacement over the points (degrees), largest first.
+    "rms_deg": {"dy_x2": …}, "residual_rms_deg", "residual_max_deg"}``, ``rms_deg``
+    being each term's own RMS displacement over the points (degrees), largest first,
+    keyed ``d<axis>_<monomial>`` (written ``dy·x2`` in the docs).
     """
     r = np.asarray(r_real, dtype=np.float64).reshape(-1, 2)
     p = np.asarray(r_paraxial, dtype=np.float64).reshape(-1, 2)
@@ -136,7 +140,7 @@ def distortion_terms(r_real, r_paraxial, degree: int = 3) -> dict | None:
     coef, *_ = np.linalg.lstsq(A, e, rcond=None)  # (T, 2)
     resid = e - A @ coef
     names = [_monomial_name(i, j) for i, j in terms]
-    rms = {f"d{a}·{name}": float(np.sqrt(np.mean((A[:, t] * coef[t, ax]) ** 2)))
+    rms = {f"d{a}_{name}": float(np.sqrt(np.mean((A[:, t] * coef[t, ax]) ** 2)))
            for ax, a in enumerate("xy") for t, name in enumerate(names)}
     return {
         "degree": deg,
