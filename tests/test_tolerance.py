@@ -298,7 +298,9 @@ def test_two_worker_cluster_matches_serial_and_survives_a_killed_worker(serial_r
     out = tmp_path / "cluster"
     assert main(["tolerance", str(design_file), "--out", str(out), "--scheduler", address, "--no-plots"]) == 0
     _same(_records(out), _records(serial_run))
-    assert len({r["worker"] for r in _records(out).values()}) == 2  # both workers took trials
+    # Both workers take trials: checked over this run's 3 tasks and the 40 below, since under
+    # pytest-xdist a worker starved of CPU can see the first run's few tasks all go to the other.
+    workers_seen = {r["worker"] for r in _records(out).values()}
 
     # 40 trials, one per task; kill a worker once the first records are stored.
     out2 = tmp_path / "killed"
@@ -326,6 +328,7 @@ def test_two_worker_cluster_matches_serial_and_survives_a_killed_worker(serial_r
     recs = _records(out2)
     for k in ref:  # the first six trials are the serial run's
         assert recs[k]["metrics"] == ref[k]["metrics"]
+    assert len(workers_seen | {r["worker"] for r in recs.values()}) >= 2  # both workers took trials
 
 
 # ------------------------------------------------------------------ sweep
