@@ -175,9 +175,109 @@ def _diffraction(model: IniModel, bundle: Bundle, sets: PupilSets, r, cen, D, fr
     if opd_method(model) == "slopes":
         off_g = spot.angular_offsets(r[:, :, g], cen)
         opd = mtf.wavefront_from_slopes(sets.rho[g], pup, off_g, ok[:, :, g])
+    freqs = np.asarray(freqs_cpd, dtype=np.float64).ravel() * CPD_TO_CPR
+    if len(freqs) == 1:  # one frequency (Nyquist): the autocorrelation summed there, not by FFT
+        dif = mtf.diffraction_otf_at(sets.rho[g], pup, opd, ok[:, :, g], model.lam, float(freqs[0]))[..., None, :]
+        return opd, (dif if otf else np.abs(dif))
     fn = mtf.diffraction_otf if otf else mtf.diffraction_mtf
-    dif = fn(sets.rho[g], pup, opd, ok[:, :, g], model.lam, np.asarray(freqs_cpd, dtype=np.float64) * CPD_TO_CPR)
+    dif = fn(sets.rho[g], pup, opd, ok[:, :, g], model.lam, freqs)
     return opd, dif
+
+
+def focus_offsets(half_range_d: float, step_d: float) -> np.ndarray:
+    """The eye-focus offsets of :func:`through_focus`: −half … +half in steps of ``step`` D
+    (0 always among them: the sweep is symmetric about each state's CDP)."""
+    n = int(round(half_range_d / step_d))
+    return step_d * np.arange(-n, n + 1, dtype=np.float64)
+
+
+def _peaks(offsets: np.ndarray, curves: np.ndarray):
+    """Per curve (T, ...) the position and height of its maximum, refined by the parabola
+    through the largest sample and its two neighbours (a maximum on the sweep's edge is left
+    there and flagged). Curves that are 0 everywhere (no pupil left) have no peak: NaN."""
+    T = len(offsets)
+    i = np.argmax(curves, axis=0)
+    top = np.take_along_axis(curves, i[None], axis=0)[0]
+    lo = np.take_along_axis(curves, np.clip(i - 1, 0, T - 1)[None], axis=0)[0]
+    hi = np.take_along_axis(curves, np.clip(i + 1, 0, T - 1)[None], axis=0)[0]
+    edge = (i == 0) | (i == T - 1)
+    den = lo - 2.0 * top + hi
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(~edge & (den < 0), 0.5 * (lo - hi) / den, 0.0)  # vertex, in steps: |t| <= 1/2
+    step = offsets[1] - offsets[0] if T > 1 else 0.0
+    pos = offsets[i] + t * step
+    height = np.maximum(top - 0.25 * (lo - hi) * t, top)
+    none = ~(top > 0)
+    return np.where(none, np.nan, pos), np.where(none, np.nan, height), edge & ~none
+
+
+def through_focus(res: dict, offsets_d) -> dict:
+    """The contrast at Nyquist of every sampled field and orientation with the eye focused at
+    each CDP state's depth plus ``offsets_d`` (D), the tunable lens held at the state's power.
+
+    The rays leaving the viewing window do not depend on where the eye focuses, so nothing is
+    traced again: each focus changes only the reference of the retinal directions (``t −
+    h·D/1000``), the spot centroid, the reference sphere of the optical path and so the
+    diffraction MTF (:func:`_diffraction`, the same as the contrast of :func:`evaluate`, which
+    offset 0 reproduces exactly).
+
+    Returns ``offsets_d`` (T,), ``contrast`` (T, S, F, 2) (axis −1: modulation along x, along
+    y; the analysis's contrast is the smaller), ``best_d`` (S, F, 2), each orientation's best
+    focus relative to the CDP (the parabola through the sweep's largest sample and its
+    neighbours; NaN where no pupil is left), ``peak`` (S, F, 2) the contrast there, ``edge``
+    (S, F, 2) peaks on the sweep's edge, and ``common_best`` / ``common_d`` (S, F): each field's
+    largest contrast (the smaller orientation's) over the sweep, and the focus where.
+    """
+    model, subs, sets, bundle = res["model"], res["subs"], res["sets"], res["bundle"]
+    off = np.asarray(offsets_d, dtype=np.float64)
+    if off.ndim != 1 or len(off) < 3 or not np.all(np.diff(off) > 0) or not np.allclose(np.diff(off), off[1] - off[0]):
+        raise ValueError(f"through_focus: offsets must be 3 or more evenly spaced increasing values, got {off}")
+    D0 = np.array(model.depths, dtype=np.float64)[subs.k]
+    ok, g2 = bundle.ok, sets.slices["gl2"]
+    slopes = bundle.slopes()
+    out = np.empty((len(off),) + ok.shape[:2] + (2,))
+    for i, d in enumerate(off):
+        D = D0 + d
+        r = spot.retinal_tan(bundle.pos, slopes, D[:, None, None])
+        _, cen, _ = spot.rms_spot(r[:, :, g2], sets.weights["gl2"], ok[:, :, g2])
+        _, dif = _diffraction(model, bundle, sets, r, cen, D, [res["nyquist_cpd"]])
+        out[i] = dif[..., 0, :]
+    best, peak, edge = _peaks(off, out)
+    both = np.min(out, axis=-1)
+    j = np.argmax(both, axis=0)
+    common = np.take_along_axis(both, j[None], axis=0)[0]
+    return {"offsets_d": off, "contrast": out, "best_d": best, "peak": peak, "edge": edge,
+            "common_best": common, "common_d": np.where(common > 0, off[j], np.nan)}
+
+
+def _stats(v: np.ndarray) -> dict | None:
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return None
+    return {"mean": _f(np.mean(v)), "rms": _f(np.sqrt(np.mean(v * v))), "std": _f(np.std(v)),
+            "min": _f(np.min(v)), "max": _f(np.max(v))}
+
+
+def _through_focus_summary(tf: dict, sel: np.ndarray) -> dict:
+    """``by_depth[D].through_focus`` of ``metrics.json`` for the sub-systems ``sel``."""
+    c = tf["contrast"][:, sel]
+    bx, by = tf["best_d"][sel, :, 0], tf["best_d"][sel, :, 1]
+    both = np.isfinite(bx) & np.isfinite(by)
+    each = np.min(tf["peak"][sel], axis=-1)
+    return {
+        "focus_offsets_d": [float(v) for v in tf["offsets_d"]],
+        "contrast_mean": [_f(v) for v in np.mean(np.min(c, axis=-1), axis=(1, 2))],
+        "contrast_min": [_f(v) for v in np.min(c, axis=(1, 2, 3))],
+        "best_focus_x_d": _stats(bx), "best_focus_y_d": _stats(by),
+        "field_curvature_d": _stats(np.where(both, 0.5 * (bx + by), np.nan)),
+        "astigmatism_d": _stats(np.where(both, bx - by, np.nan)),
+        "contrast_at_best_focus": {"mean": _f(np.mean(tf["common_best"][sel])),
+                                   "min": _f(np.min(tf["common_best"][sel]))},
+        "contrast_each_axis_at_best_focus": {"mean": _f(np.mean(np.where(both, each, 0.0))),
+                                             "min": _f(np.min(np.where(both, each, 0.0)))},
+        "fields": int(np.sum(both)), "fields_without_a_peak": int(np.sum(~both)),
+        "peaks_at_sweep_edge": int(np.sum(tf["edge"][sel])),
+    }
 
 
 #: The eight neighbours of a field point, in units of the search step.
@@ -345,6 +445,7 @@ def summarize(res: dict, package: bool = True) -> dict:
     lc = res.get("lateral_colour")
     poly = res.get("polychromatic")
     pc = poly["contrast"] if poly else None
+    tf = res.get("through_focus")
     pa_ok, gd_ok = res["pa_ok"], res["chief_ok"][:, 0]
     pa_sub = np.max(np.where(pa_ok, res["pa"], -np.inf), axis=1)
     sub_ok = np.any(pa_ok, axis=1)
@@ -369,6 +470,7 @@ def summarize(res: dict, package: bool = True) -> dict:
             "vignetted_fraction": [_f(v) for v in res["vignetted"][i]],
             "lateral_colour_arcmin": ([_f(v) if o else None for v, o in zip(lc["arcmin"][i], lc["ok"][i])]
                                       if lc else None),
+            "best_focus_offset_d": ([[_f(v) for v in field] for field in tf["best_d"][i]] if tf else None),
             "chief_ray_ok": bool(res["chief_ok"][i, 0]),
             "marginal_rays_ok": bool(np.all(res["pa_ok"][i])),
         })
@@ -393,6 +495,7 @@ def summarize(res: dict, package: bool = True) -> dict:
             "gd_terms": _gd_terms(res, sel & gd_ok),
             "lateral_colour_max_arcmin": _masked(np.max, lc["arcmin"][sel], lc["ok"][sel]) if lc else None,
             "lateral_colour_mean_arcmin": _masked(np.mean, lc["arcmin"][sel], lc["ok"][sel]) if lc else None,
+            "through_focus": _through_focus_summary(tf, sel) if tf else None,
             "first_order": res["states"][k].as_dict(),
         }
     conv = np.abs(res["rms"] - res["rms_n"])
@@ -435,7 +538,8 @@ def summarize(res: dict, package: bool = True) -> dict:
 
 
 def analyze(design, out_dir=None, stride=None, symmetry=None, depths_diopters=None,
-            progress: bool = False, plots: bool = True, reference=None, polychromatic: bool = False) -> dict:
+            progress: bool = False, plots: bool = True, reference=None, polychromatic: bool = False,
+            through_focus_d: tuple[float, float] | None = None) -> dict:
     """Evaluate every sampled sub-system and write ``metrics.json`` and the plots.
 
     ``depths_diopters`` restricts the CDP states (values from the design's
@@ -443,7 +547,9 @@ def analyze(design, out_dir=None, stride=None, symmetry=None, depths_diopters=No
     rays GD and PA are measured against (see :func:`evaluate`). ``polychromatic``: also the
     contrast of the polychromatic MTF (:func:`polychromatic_contrast`; it traces and
     transforms every wavelength, about twice the time of the rest, so it is off by
-    default). Returns the
+    default). ``through_focus_d``: (half range, step) in diopters of an eye-focus sweep about
+    each state's CDP (:func:`through_focus`: each field's and orientation's best focus, the
+    field curvature and astigmatism it gives, and the contrast at it). Returns the
     metrics document (also written to ``out_dir``, a folder replaced as a
     whole on success: see :func:`lfsim.fileio.atomic_dir`).
     """
@@ -475,6 +581,15 @@ def analyze(design, out_dir=None, stride=None, symmetry=None, depths_diopters=No
              f"{len(set(model.system.wavelengths_nm)) - 1} more wavelengths")
     with phase("the polychromatic contrast"):
         res["polychromatic"] = polychromatic_contrast(res) if polychromatic else None
+    if through_focus_d is not None:
+        offsets = focus_offsets(*through_focus_d)
+        if progress:
+            from ..progress import line
+
+            line(f"through focus: {len(offsets)} eye foci from {offsets[0]:+g} to {offsets[-1]:+g} D "
+                 f"about each CDP, {len(subs)} sub-systems")
+        with phase("the through-focus contrast"):
+            res["through_focus"] = through_focus(res, offsets)
     res["t_all"] += time.perf_counter() - t0  # the wall time includes colour's extra traces
     with phase("measuring the package"):
         doc = summarize(res)

@@ -9,6 +9,10 @@
   and the real chief rays (blue asterisks), per depth.
 * ``footprints.png`` (Fig. 8b/c): footprint envelopes on the viewing window of
   every field of chosen lenslets (colours) over the paraxial ones (black).
+* ``through_focus.png`` (with ``--through-focus``): the contrast at Nyquist against the
+  eye's focus (mean over the fields per CDP state, and chosen fields per orientation), and
+  maps over the lenslet array of each EI centre's best focus relative to its CDP (the
+  curvature of the virtual image across the lenslets) and of its astigmatism.
 """
 
 from __future__ import annotations
@@ -191,6 +195,66 @@ def footprints(res, path, k=None):
     plt.close(fig)
 
 
+def through_focus(res, path, k=None):
+    """Through-focus contrast and the best-focus maps of :func:`lfsim.analysis.ini_analysis.through_focus`."""
+    plt = _plt()
+    model, subs, tf = res["model"], res["subs"], res["through_focus"]
+    k = _pick_depth(model, subs=subs) if k is None else k
+    sel = subs.k == k
+    off = tf["offsets_d"]
+    fig, axes = plt.subplots(1, 3, figsize=(16, 4.6), dpi=120)
+    ax = axes[0]
+    for kk, D in enumerate(model.depths):
+        s = subs.k == kk
+        if np.any(s):
+            ax.plot(off, np.mean(np.min(tf["contrast"][:, s], axis=-1), axis=(1, 2)), lw=2,
+                    label=f"mean, CDP {D:g} D")
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    M, N = model.arr.m, model.arr.n
+    picks = []
+    for m, n in ((M // 2, N // 2), (M // 2, 0), (0, 0)):
+        i = _nearest(subs, k, m, n)
+        if i is not None and i not in picks:
+            picks.append(i)
+    for j, i in enumerate(picks):
+        col = colors[(j + len(model.depths)) % len(colors)]
+        lab = f"lenslet ({subs.m[i] + 1},{subs.n[i] + 1}) centre field"
+        ax.plot(off, tf["contrast"][:, i, 0, 0], color=col, lw=1, label=lab + ", horizontal")
+        ax.plot(off, tf["contrast"][:, i, 0, 1], color=col, lw=1, ls="--", label=lab + ", vertical")
+    ax.axvline(0.0, color="k", lw=0.8, ls=":")
+    ax.axhline(0.2, color="grey", lw=0.6, ls=":")
+    ax.set_xlim(off[0], off[-1])
+    ax.set_ylim(0, 1.02)
+    ax.set_xlabel("eye focus − CDP (D)")
+    ax.set_ylabel(f"contrast at {res['nyquist_cpd']:.2f} cycles/deg (Nyquist)")
+    ax.set_title(f"through focus (lenslets at CDP {model.depths[k]:g} D)", fontsize=9)
+    ax.legend(fontsize=6)
+    best = tf["best_d"][sel][:, 0]  # each sampled lenslet's EI-centre field
+    grid = np.full((2, N, M), np.nan)
+    grid[0, subs.n[sel], subs.m[sel]] = 0.5 * (best[:, 0] + best[:, 1])
+    grid[1, subs.n[sel], subs.m[sel]] = best[:, 0] - best[:, 1]
+    for ax, v, label, cmap in ((axes[1], grid[0], "best focus − CDP (D)", "coolwarm"),
+                               (axes[2], grid[1], "astigmatism, horizontal − vertical (D)", "PuOr")):
+        lim = max(1e-3, float(np.nanmax(np.abs(v)))) if np.any(np.isfinite(v)) else 1.0
+        im = ax.imshow(np.ma.masked_invalid(v), origin="lower", cmap=cmap, vmin=-lim, vmax=lim,
+                       extent=(0.5, M + 0.5, 0.5, N + 0.5))
+        fig.colorbar(im, ax=ax, label=label, shrink=0.8)
+        from matplotlib.ticker import MaxNLocator
+
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.yaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.set_xlabel("lenslet m")
+        ax.set_ylabel("lenslet n")
+        ax.set_title("each lenslet's EI-centre field" + (" (blank: not sampled)" if np.any(np.isnan(v)) else ""),
+                     fontsize=9)
+    at_cdp = np.mean(np.min(tf["contrast"][len(off) // 2, sel], axis=-1))
+    fig.suptitle(textwrap.fill(model.design.name, 120) + "\n"
+                 + f"CDP {model.depths[k]:g} D: contrast mean {at_cdp:.3f} at the CDP, "
+                 f"{np.mean(tf['common_best'][sel]):.3f} with each field at its best focus", fontsize=9)
+    save_figure(fig, path, bbox_inches="tight")
+    plt.close(fig)
+
+
 def write_all(res, out_dir) -> list[str]:
     """Write every picture into ``out_dir``; returns their file names."""
     out = Path(out_dir)
@@ -200,4 +264,7 @@ def write_all(res, out_dir) -> list[str]:
     mtf_depths(res, out / names[2])
     distortion_grid(res, out / names[3])
     footprints(res, out / names[4])
+    if res.get("through_focus") is not None:
+        names.append("through_focus.png")
+        through_focus(res, out / names[-1])
     return names

@@ -92,9 +92,10 @@ def cmd_analyze(args) -> int:
         reference = load(args.reference)
         if reference.ini is None:
             raise InputError(f"{args.reference}: ini = missing: a --reference design needs an [ini] section")
+    sweep = _focus_sweep(args.through_focus) if args.through_focus else None
     doc = analyze(design, args.out, stride=stride, symmetry=args.symmetry, depths_diopters=depths,
                   progress=not args.json, plots=not args.no_plots,
-                  reference=reference, polychromatic=args.polychromatic)
+                  reference=reference, polychromatic=args.polychromatic, through_focus_d=sweep)
     if args.json:
         print(_dump(doc))
         return 0
@@ -134,6 +135,9 @@ def cmd_analyze(args) -> int:
     for D, b in doc["by_depth"].items():
         if b.get("gd_terms"):
             print(f"  GD terms at {D} D: " + _gd_terms_line(b["gd_terms"]))
+    for D, b in doc["by_depth"].items():
+        if b.get("through_focus"):
+            print(f"  through focus at {D} D: " + _through_focus_line(b["through_focus"]))
     if doc.get("package"):
         print("  " + _package_line(doc["package"]))
     print(f"wrote {args.out}/metrics.json" + (", " + ", ".join(doc.get("plots", [])) if doc.get("plots") else ""))
@@ -152,6 +156,25 @@ def _first_order_line(fo: dict | None) -> str:
     if None not in (cx, cy, D) and max(abs(cx - D), abs(cy - D)) > 0.005:  # an astigmatic CDP
         line += f", paraxial CDP x {cx:.2f} y {cy:.2f} D"
     return line
+
+
+def _focus_sweep(text: str) -> tuple[float, float]:
+    """``--through-focus HALF,STEP``: a half range and a step in diopters, 3 to 401 foci."""
+    vals = _float_list(text, "--through-focus")
+    if len(vals) != 2 or not (vals[0] > 0 and vals[1] > 0) or not 1 <= vals[0] / vals[1] <= 200:
+        raise InputError(f"--through-focus = {text!r}: expected HALF,STEP in diopters, both > 0, "
+                         f"with at most 200 steps either side (e.g. 1,0.05)")
+    return vals[0], vals[1]
+
+
+def _through_focus_line(t: dict) -> str:
+    fc, ast = t["field_curvature_d"], t["astigmatism_d"]
+    nominal = t["contrast_mean"][t["focus_offsets_d"].index(0.0)] if 0.0 in t["focus_offsets_d"] else None
+    return (f"best focus - CDP mean {_num(fc and fc['mean'], '+.3f')} D (std {_num(fc and fc['std'], '.3f')}), "
+            f"astigmatism x - y mean {_num(ast and ast['mean'], '+.3f')} D (rms {_num(ast and ast['rms'], '.3f')}); "
+            f"contrast mean {_num(nominal, '.3f')} at the CDP, {_num(t['contrast_at_best_focus']['mean'], '.3f')} "
+            f"with each field at its best focus, {_num(t['contrast_each_axis_at_best_focus']['mean'], '.3f')} "
+            f"with each orientation at its own")
 
 
 def _gd_terms_line(t: dict, count: int = 3) -> str:
@@ -320,6 +343,10 @@ def register(sub) -> None:
                     help="also the contrast at Nyquist of the polychromatic MTF (every [system] wavelength, "
                          "equal weights, one image point: lateral colour lowers it); traces each wavelength, "
                          "about twice the run time")
+    an.add_argument("--through-focus", nargs="?", const="1.5,0.05", metavar="HALF,STEP",
+                    help="also sweep the eye's focus about each CDP (HALF diopters either side in steps of "
+                         "STEP; default 1.5,0.05), the tunable lens held: each field's best focus per "
+                         "orientation, the field curvature and astigmatism, and the contrast there")
     an.add_argument("--no-plots", action="store_true")
     _add_set(an)
     an.add_argument("--json", action="store_true")
