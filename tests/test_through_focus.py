@@ -175,3 +175,19 @@ def test_analyze_through_focus_cli_writes_the_sweep_the_maps_and_refuses_bad_inp
     doc = A.analyze(lfsim.load(SCENES / "ini_ideal.toml"), None, stride=(8, 8),
                      depths_diopters=[1.0])
     assert doc["by_depth"]["1"]["through_focus"] is None and doc["subsystems"][0]["best_focus_offset_d"] is None
+
+
+def test_focus_bounds_example_orders_the_bounds_and_leaves_a_focused_design_as_it_is(tmp_path):
+    """examples/focus_bounds.py: on the aberration-free design every field is already at its
+    best focus, so refocusing per lenslet, on a focus surface or per field gives back nothing."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("focus_bounds", SCENES.parent / "examples" / "focus_bounds.py")
+    ex = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ex)
+    assert ex.main([str(SCENES / "ini_ideal.toml"), "--stride", "4,4", "--half", "0.5", "--step", "0.1",
+                    "--out", str(tmp_path)]) == 0
+    doc = json.loads((tmp_path / "focus_bounds.json").read_text())
+    for key in ("per_lenslet", "focus_surface", "per_field", "per_orientation"):
+        assert doc[key] == pytest.approx(doc["nominal"], abs=1e-9), key
+    assert doc["nominal"] > 0.7  # the diffraction limit of the 1 mm beams at 10.7 cpd
