@@ -135,6 +135,15 @@ def affine_fit(rho: np.ndarray, pupil: np.ndarray, ok: np.ndarray) -> np.ndarray
     return A
 
 
+def _flat_bundles(rho, pupil, opd_mm, ok):
+    """``(n, lead, L, pupil (L, n², 2), opd (L, n²), ok (L, n²))``: the bundles of an OTF call
+    flattened to one axis over the stop's n × n grid."""
+    n = int(round(np.sqrt(len(rho))))
+    lead = opd_mm.shape[:-1]
+    L = int(np.prod(lead)) if lead else 1
+    return n, lead, L, pupil.reshape(L, n * n, 2), opd_mm.reshape(L, n * n), ok.reshape(L, n * n)
+
+
 def diffraction_mtf(rho: np.ndarray, pupil: np.ndarray, opd_mm: np.ndarray, ok: np.ndarray,
                     wavelength_nm: float, freqs: np.ndarray, chunk: int = 256) -> np.ndarray:
     """Diffraction MTF from the optical path across the lenslet's square stop: the modulus of
@@ -169,12 +178,7 @@ def diffraction_otf(rho: np.ndarray, pupil: np.ndarray, opd_mm: np.ndarray, ok: 
     method's image-quality targets. J. W. Goodman, *Introduction to Fourier
     Optics* (the OTF as the normalized autocorrelation of the pupil function).
     """
-    n = int(round(np.sqrt(len(rho))))
-    lead = opd_mm.shape[:-1]
-    L = int(np.prod(lead)) if lead else 1
-    pup = pupil.reshape(L, n * n, 2)
-    opd = opd_mm.reshape(L, n * n)
-    okf = ok.reshape(L, n * n)
+    n, lead, L, pup, opd, okf = _flat_bundles(rho, pupil, opd_mm, ok)
     lam = wavelength_nm * 1e-6
     freqs = np.asarray(freqs, dtype=np.float64)
     out = np.zeros((L, len(freqs), 2), dtype=np.complex128)
@@ -216,12 +220,7 @@ def diffraction_otf_at(rho: np.ndarray, pupil: np.ndarray, opd_mm: np.ndarray, o
     as there: the same OTF to rounding, in a few array operations for every bundle at once (a
     through-focus sweep or a contrast search evaluates only the Nyquist frequency).
     """
-    n = int(round(np.sqrt(len(rho))))
-    lead = opd_mm.shape[:-1]
-    L = int(np.prod(lead)) if lead else 1
-    pup = pupil.reshape(L, n * n, 2)
-    opd = opd_mm.reshape(L, n * n)
-    okf = ok.reshape(L, n * n)
+    n, lead, L, pup, opd, okf = _flat_bundles(rho, pupil, opd_mm, ok)
     lam = wavelength_nm * 1e-6
     out = np.zeros((L, 2), dtype=np.complex128)
     A_all = affine_fit(rho, pup, okf)
