@@ -95,8 +95,21 @@ def main(argv=None) -> int:
     ap.add_argument("--stride", default="1,1", help="lenslet stride SX,SY (default every lenslet)")
     ap.add_argument("--out", help="folder for focus_bounds.json")
     args = ap.parse_args(argv)
-    doc = bounds(load(args.design), args.depth, args.half, args.step,
-                 tuple(int(v) for v in args.stride.split(",")))
+    try:
+        stride = tuple(int(v) for v in args.stride.split(","))
+    except ValueError:
+        stride = ()
+    if len(stride) != 2 or min(stride) < 1:
+        ap.error(f"--stride = {args.stride!r}: expected SX,SY, two integers >= 1")
+    if not (args.half > 0 and args.step > 0 and 1 <= args.half / args.step <= 200):
+        ap.error(f"--half = {args.half:g}, --step = {args.step:g}: expected both > 0, 1 to 200 steps either side")
+    design = load(args.design)
+    if design.ini is None:
+        ap.error(f"{args.design}: ini = missing: the bounds need an InI design")
+    depths = design.ini.cdp_diopters  # None: the one depth the geometry makes (bounds() checks it)
+    if depths is not None and not any(abs(v - args.depth) < 1e-9 for v in depths):
+        ap.error(f"--depth = {args.depth:g}: not a CDP depth of {args.design} ({depths})")
+    doc = bounds(design, args.depth, args.half, args.step, stride)
     print(f"{doc['design']} at {doc['depth_diopters']:g} D, {doc['lenslets']} lenslets x {doc['fields']} fields: "
           f"contrast mean {doc['nominal']:.3f} at the CDP; {doc['per_lenslet']:.3f} refocused per lenslet, "
           f"{doc['focus_surface']:.3f} on the best tilted and curved display, {doc['per_field']:.3f} per field, "

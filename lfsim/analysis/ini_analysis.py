@@ -265,7 +265,7 @@ def _through_focus_summary(tf: dict, sel: np.ndarray) -> dict:
     both = np.isfinite(bx) & np.isfinite(by)
     each = np.min(tf["peak"][sel], axis=-1)
     return {
-        "focus_offsets_d": [float(v) for v in tf["offsets_d"]],
+        "focus_offsets_d": [round(float(v), 12) for v in tf["offsets_d"]],
         "contrast_mean": [_f(v) for v in np.mean(np.min(c, axis=-1), axis=(1, 2))],
         "contrast_min": [_f(v) for v in np.min(c, axis=(1, 2, 3))],
         "best_focus_x_d": _stats(bx), "best_focus_y_d": _stats(by),
@@ -276,7 +276,7 @@ def _through_focus_summary(tf: dict, sel: np.ndarray) -> dict:
         "contrast_each_axis_at_best_focus": {"mean": _f(np.mean(np.where(both, each, 0.0))),
                                              "min": _f(np.min(np.where(both, each, 0.0)))},
         "fields": int(np.sum(both)), "fields_without_a_peak": int(np.sum(~both)),
-        "peaks_at_sweep_edge": int(np.sum(tf["edge"][sel])),
+        "peaks_at_sweep_edge": int(np.sum(tf["edge"][sel])),  # orientation peaks (two per field)
     }
 
 

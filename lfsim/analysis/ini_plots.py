@@ -202,7 +202,7 @@ def through_focus(res, path, k=None):
     k = _pick_depth(model, subs=subs) if k is None else k
     sel = subs.k == k
     off = tf["offsets_d"]
-    fig, axes = plt.subplots(1, 3, figsize=(16, 4.6), dpi=120)
+    fig, axes = plt.subplots(1, 3, figsize=(17, 5.2), dpi=120, layout="constrained")
     ax = axes[0]
     for kk, D in enumerate(model.depths):
         s = subs.k == kk
@@ -228,24 +228,24 @@ def through_focus(res, path, k=None):
     ax.set_xlabel("eye focus − CDP (D)")
     ax.set_ylabel(f"contrast at {res['nyquist_cpd']:.2f} cycles/deg (Nyquist)")
     ax.set_title(f"through focus (lenslets at CDP {model.depths[k]:g} D)", fontsize=9)
-    ax.legend(fontsize=6)
+    ax.legend(fontsize=6, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2)
     best = tf["best_d"][sel][:, 0]  # each sampled lenslet's EI-centre field
     grid = np.full((2, N, M), np.nan)
     grid[0, subs.n[sel], subs.m[sel]] = 0.5 * (best[:, 0] + best[:, 1])
     grid[1, subs.n[sel], subs.m[sel]] = best[:, 0] - best[:, 1]
-    for ax, v, label, cmap in ((axes[1], grid[0], "best focus − CDP (D)", "coolwarm"),
-                               (axes[2], grid[1], "astigmatism, horizontal − vertical (D)", "PuOr")):
-        lim = max(1e-3, float(np.nanmax(np.abs(v)))) if np.any(np.isfinite(v)) else 1.0
+    for ax, v, label, cmap in ((axes[1], grid[0], "best focus − CDP", "coolwarm"),
+                               (axes[2], grid[1], "astigmatism, horizontal − vertical", "PuOr")):
+        lim = max(0.05, float(np.nanmax(np.abs(v)))) if np.any(np.isfinite(v)) else 1.0
         im = ax.imshow(np.ma.masked_invalid(v), origin="lower", cmap=cmap, vmin=-lim, vmax=lim,
                        extent=(0.5, M + 0.5, 0.5, N + 0.5))
-        fig.colorbar(im, ax=ax, label=label, shrink=0.8)
+        fig.colorbar(im, ax=ax, label=label + " (D)", shrink=0.8)
         from matplotlib.ticker import MaxNLocator
 
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.yaxis.set_major_locator(MaxNLocator(integer=True))
         ax.set_xlabel("lenslet m")
         ax.set_ylabel("lenslet n")
-        ax.set_title("each lenslet's EI-centre field" + (" (blank: not sampled)" if np.any(np.isnan(v)) else ""),
+        ax.set_title(f"{label}, per lenslet (EI centre)" + ("\nblank: not sampled" if np.any(np.isnan(v)) else ""),
                      fontsize=9)
     at_cdp = np.mean(np.min(tf["contrast"][len(off) // 2, sel], axis=-1))
     fig.suptitle(textwrap.fill(model.design.name, 120) + "\n"

@@ -174,7 +174,8 @@ def _through_focus_line(t: dict) -> str:
             f"astigmatism x - y mean {_num(ast and ast['mean'], '+.3f')} D (rms {_num(ast and ast['rms'], '.3f')}); "
             f"contrast mean {_num(nominal, '.3f')} at the CDP, {_num(t['contrast_at_best_focus']['mean'], '.3f')} "
             f"with each field at its best focus, {_num(t['contrast_each_axis_at_best_focus']['mean'], '.3f')} "
-            f"with each orientation at its own")
+            f"with each orientation at its own"
+            + (f"; {t['peaks_at_sweep_edge']} peaks on the sweep's edge: widen it" if t["peaks_at_sweep_edge"] else ""))
 
 
 def _gd_terms_line(t: dict, count: int = 3) -> str:
@@ -343,10 +344,11 @@ def register(sub) -> None:
                     help="also the contrast at Nyquist of the polychromatic MTF (every [system] wavelength, "
                          "equal weights, one image point: lateral colour lowers it); traces each wavelength, "
                          "about twice the run time")
-    an.add_argument("--through-focus", nargs="?", const="1.5,0.05", metavar="HALF,STEP",
-                    help="also sweep the eye's focus about each CDP (HALF diopters either side in steps of "
-                         "STEP; default 1.5,0.05), the tunable lens held: each field's best focus per "
-                         "orientation, the field curvature and astigmatism, and the contrast there")
+    an.add_argument("--through-focus", metavar="HALF,STEP",
+                    help="also sweep the eye's focus about each CDP, HALF diopters either side in steps of "
+                         "STEP (e.g. 1.5,0.05), each state's tunable-lens power kept: every field's best focus "
+                         "per orientation, the field curvature and astigmatism, the contrast there "
+                         "(by_depth.through_focus, through_focus.png); about 2 s per focus at stride 1 on 2 cores")
     an.add_argument("--no-plots", action="store_true")
     _add_set(an)
     an.add_argument("--json", action="store_true")
