@@ -1,4 +1,4 @@
-"""The step model's hinges, measured: ``lm``, ``lm-hinge`` and ``lm-hinge-all`` side by side.
+"""The step model's hinges, measured: ``lm`` and ``lm-hinge`` side by side.
 
 Usage::
 
@@ -7,18 +7,18 @@ Usage::
 
 From the same start (the design's numbers, the stage's variables, targets, weights and
 sampling), each solver takes N damped least-squares steps in this process, one after
-another, so that the three share the machine and the compiled kernels (the first solver
-also pays the kernel compiles: run it twice, or read the later ones, for a warm ratio).
+another, so that both share the machine and the compiled kernels (the first solver
+also pays the kernel compiles: name it twice in ``--solvers`` for a warm ratio).
 Recorded per solver: the merit after every accepted step, the seconds, the residual and
 Jacobian evaluations, and the figures of the merit's last evaluation (GD max and mean,
 PA max, the mean RMS spot, the rays lost). The ratio that matters is the merit's decrease
 per iteration and per second against ``lm``'s.
 
-* ``lm``: every hinge (the per-field spot, GD, PA and colour limits, the glass and
-  package limits) is a penalty row that exists only while the limit is broken, so the
-  step's linear model cannot see a step push a field over its limit;
-* ``lm-hinge``: the mechanical limits enter the step model as hinges max(0, g + G h);
-* ``lm-hinge-all``: the image figures' hinges as well.
+* ``lm``: every limit (the glass, package and display limits, and the per-field spot, GD,
+  PA and colour limits) is a penalty row that exists only while the limit is broken, so
+  the step's linear model cannot see a step break a limit that holds;
+* ``lm-hinge``: the mechanical limits enter the step model as hinges max(0, g + G h), with
+  their Jacobian whether or not they hold.
 
 Output: a table on stdout, ``benchmarks/results/solver_hinges.json`` (or ``--json``) and
 a plot of the merit against iterations and seconds beside it, both written atomically.
@@ -37,19 +37,17 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from lfsim import load  # noqa: E402
-from lfsim.design.optimize_section import HINGE_SOLVERS  # noqa: E402
 from lfsim.fileio import save_figure, write_json  # noqa: E402
 from lfsim.optimize.merit import IniMerit  # noqa: E402
 from lfsim.optimize.solvers import Bounds, levenberg_marquardt  # noqa: E402
 from lfsim.optimize.workflow import plans  # noqa: E402
 
-SOLVERS = ("lm", "lm-hinge", "lm-hinge-all")
+SOLVERS = ("lm", "lm-hinge")
 
 
 def run(design, stage: str, solver: str, iterations: int) -> dict:
     plan = plans(design, [stage])[0]
-    merit = IniMerit(design, plan.spec, cols=plan.cols, stride=plan.stride,
-                     hinge_model=solver in HINGE_SOLVERS, image_hinges=solver == "lm-hinge-all")
+    merit = IniMerit(design, plan.spec, cols=plan.cols, stride=plan.stride, hinge_model=solver == "lm-hinge")
     lo, hi = merit.bounds
     x0 = np.clip(merit.x0, lo, hi)
     t0 = time.perf_counter()
@@ -62,7 +60,7 @@ def run(design, stage: str, solver: str, iterations: int) -> dict:
               f"{trail[-1]['seconds']:.0f} s", flush=True)
 
     res = levenberg_marquardt(merit, x0, Bounds(lo, hi), max_iterations=iterations, scale=np.maximum(np.abs(x0), 1e-3),
-                              hinges=solver in HINGE_SOLVERS, on_iteration=seen)
+                              hinges=solver == "lm-hinge", on_iteration=seen)
     secs = time.perf_counter() - t0
     _, _, det = merit.evaluate(res.x, derivatives=False)
     keys = ("gd_max_deg", "gd_mean_deg", "pa_max", "rms_spot_mean_arcmin", "rays_lost")
@@ -105,7 +103,7 @@ def main(argv=None) -> int:
     ap.add_argument("--solvers", default=",".join(SOLVERS))
     ap.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "solver_hinges.json"))
     a = ap.parse_args(argv)
-    solvers = [s for s in a.solvers.split(",") if s]
+    solvers = [s for s in a.solvers.split(",") if s]  # a name given twice runs twice (warm)
     bad = [s for s in solvers if s not in SOLVERS]
     if bad or a.iterations < 1:
         print(f"solver_hinges.py: --solvers {a.solvers!r} / --iterations {a.iterations}: solvers from "

@@ -555,53 +555,6 @@ def test_display_mismatch_is_the_renderers_rule(scenes, edge, step, renders):
         assert mis.max() > 1.0
 
 
-def test_image_hinges_enter_the_step_model_with_a_jacobian_everywhere(scenes, tmp_path):
-    """lm-hinge-all: the per-axis spot, GD (per sub-system and mean), PA and lateral-colour
-    hinges join the constraints at the end of the residuals as signed excesses g, every
-    measurable entry kept (−inf where a field is lost); the merit and every block's sum are
-    the penalty form's, and G agrees with central differences of g (smooth through the
-    limit: no kink) for every variable. lm-hinge leaves the image hinges as penalty rows."""
-    from lfsim.optimize.merit import IMAGE_HINGES
-
-    variables = ["S3.x2y0", "S4.x2y1", "S1.curvature", "A1a.curvature", "object.distance", "tunable"]
-    targets = {"spot_axis_max_arcmin": 0.8, "gd_max_deg": 0.2, "gd_mean_deg": 0.1, "pa_max": 0.05,
-               "lateral_colour_max_arcmin": 4.0}
-    d = _design(scenes, tmp_path, variables, targets=targets,
-                weights={"distortion": 0.1, "colour": 10.0})
-    P = IniMerit(d, d.optimize)
-    C = IniMerit(d, d.optimize, hinge_model=True)
-    H = IniMerit(d, d.optimize, hinge_model=True, image_hinges=True)
-    x0 = H.x0
-    rp, _, dp = P.evaluate(x0, dense=True)
-    rc, _, dc = C.evaluate(x0)
-    rh, Jh, dh = H.evaluate(x0)
-    g, G = H.hinges
-    assert rp @ rp == pytest.approx(rh @ rh, rel=1e-12) and rc @ rc == pytest.approx(rh @ rh, rel=1e-12)
-    for name in IMAGE_HINGES:
-        assert dp[name] == pytest.approx(dh[name], rel=1e-12, abs=1e-9), name
-        assert dh[name] > 0, name  # each image hinge is active somewhere
-    assert len(C.hinges[0]) < len(g)  # lm-hinge: constraints only
-    counts = dict(H.layout)
-    assert all(counts[name] > 0 for name in IMAGE_HINGES)
-    assert np.array_equal(rh[-len(g):], np.maximum(g, 0.0))
-    np.testing.assert_array_equal(Jh[-len(g):], np.where((g > 0)[:, None], G, 0.0))
-    live = np.isfinite(g)
-    assert (g[live] > 0).any() and (g[live] < 0).any()
-    for j, c in enumerate(H.cols):
-        h = 1e-6 * max(1.0, abs(x0[j])) if c.state is None else 1e-4
-        xp, xm = x0.copy(), x0.copy()
-        xp[j] += h
-        xm[j] -= h
-        H.evaluate(xp, derivatives=False)
-        gp = H.hinges[0].copy()
-        H.evaluate(xm, derivatives=False)
-        with np.errstate(invalid="ignore"):
-            fd = np.where(live, (gp - H.hinges[0]) / (2 * h), 0.0)
-        scale = np.abs(fd).max()
-        assert scale > 0, c.label
-        np.testing.assert_allclose(G[:, j], fd, rtol=0, atol=2e-5 * scale + 1e-7, err_msg=c.label)
-
-
 def test_a_tunable_lens_that_is_not_a_variable_is_held(scenes, tmp_path):
     """Variables without "tunable", on a design whose file solves the tunable powers for the
     CDP depths (no power_diopters): the merit holds the start's powers at every trial point

@@ -6,7 +6,6 @@ import math
 import sys
 
 from ..design import load
-from ..design.optimize_section import SOLVERS
 from .common import InputError, _add_set, _dump, _float_list, _int_pair, _load_design
 
 
@@ -360,7 +359,7 @@ def register(sub) -> None:
     op.add_argument("--out", required=True, help="output directory (optimized design, history, plots, checkpoints)")
     op.add_argument("--stages", help="comma-separated stages (default: the design's [optimize] stages)")
     op.add_argument("--iterations", type=int, help="iterations per stage (default: the design's)")
-    op.add_argument("--solver", choices=SOLVERS, help="default: the design's")
+    op.add_argument("--solver", choices=("lm", "lm-hinge", "adam"), help="default: the design's")
     op.add_argument("--resume", action="store_true", help="continue from the checkpoints in --out")
     op.add_argument("--no-analyze", action="store_true", help="skip the before/after `analyze` runs")
     op.add_argument("--analyze-stride", default="4,2",

@@ -11,9 +11,7 @@ Schema (units mm, degrees, diopters)::
     variables = ["S3.x2y0", { name = "S1.curvature", min = -0.05, max = 0.05 },
                  { name = "tunable", min = -2.0, max = 4.5 }]     # default: none
     solver = "lm"            # "lm" (damped least squares) | "lm-hinge" (the same, with the
-                             # glass, prism and package limits as hinges in its step model) |
-                             # "lm-hinge-all" (also the per-field spot, PA, GD and colour
-                             # hinges) | "adam"
+                             # glass, prism and package limits as hinges in its step model) | "adam"
     iterations = 30          # > 0, per stage
     full_iterations = 3      # > 0, the "full" stage's (default: iterations)
     stages = ["mla", "relay_eyepiece", "integrated", "full"]
@@ -125,10 +123,7 @@ OPTIMIZE_KEYS = {"variables", "solver", "iterations", "full_iterations", "stages
                  "weights"}
 STAGE_KEYS = {"name", "variables", "solver", "iterations", "stride", "fields", "pupil", "targets", "weights"}
 _STAGE_NAME_RE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
-SOLVERS = ("lm", "lm-hinge", "lm-hinge-all", "adam")
-#: The solvers whose step model takes the mechanical limits as hinges; ``lm-hinge-all`` the
-#: image figures' hinges as well (lfsim.optimize.merit.IMAGE_HINGES).
-HINGE_SOLVERS = ("lm-hinge", "lm-hinge-all")
+SOLVERS = ("lm", "lm-hinge", "adam")
 #: Workflow stages in the order they run.
 STAGES = ("mla", "relay_eyepiece", "integrated", "full")
 #: The variable name standing for the tunable lens's power at every CDP state.

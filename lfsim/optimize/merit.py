@@ -142,9 +142,6 @@ class _Sample:
     apertures: list
     dr: np.ndarray | None = None
     dpos: np.ndarray | None = None
-    #: The image hinges in the step model's form (``lm-hinge``): signed excess and Jacobian
-    #: of every measurable entry (:func:`_hinge`), routed to :meth:`Rows.add_hinge`.
-    hinge_model: bool = False
     dsurf: np.ndarray | None = None
     dcos: np.ndarray | None = None
     dpar_c: np.ndarray | None = None
@@ -228,31 +225,15 @@ class Rows:
         return r, J, dict(self.sums), layout
 
 
-def _hinge(st, valid, excess, jac, model: bool = False):
-    """Rows of a hinge block over the entries ``valid`` (measurable): ``excess`` (the signed
-    excess over the limit, weighted) where it is positive, else 0, and ``jac(index)``, the
+def _hinge(st, over, excess, jac):
+    """Rows of a hinge block: ``excess`` where ``over`` (else 0) and ``jac(index)``, the
     Jacobian rows of the entries at ``index``. Dense: every entry (``index`` = ``...``);
-    otherwise only the entries over their limit, gathered (the others are 0 rows).
-    ``model`` (an image hinge of a ``hinge_model`` sample): the step model's form instead,
-    the signed excess of every entry (−inf where not ``valid``: no pull) with its Jacobian,
-    for :meth:`Rows.add_hinge`."""
-    valid = np.broadcast_to(valid, np.shape(excess))
-    if model:
-        g = np.where(valid, excess, -np.inf)
-        return g, (np.where(valid[..., None], jac(...), 0.0) if st.derivatives else None)
-    over = valid & (excess > 0.0)
+    otherwise only the entries over their limit, gathered (the others are 0 rows)."""
     if st.dense:
         r = np.where(over, excess, 0.0)
         return r, (np.where(over[..., None], jac(...), 0.0) if st.derivatives else None)
     ix = np.nonzero(over)
     return excess[ix], (jac(ix) if st.derivatives else None)
-
-
-#: The image figures' hinges (each field's per-axis RMS spot, PA and lateral colour, each
-#: sub-system's GD, the mean GD): in a ``hinge_model`` merit they enter the ``lm-hinge``
-#: step model like the mechanical constraints, every entry with its Jacobian, so that a
-#: step sees the fields it would push over their limit.
-IMAGE_HINGES = ("spot_axis_max", "gd_max", "gd_mean", "pa_hinge", "colour_max")
 
 
 def columns(design: Design, spec) -> list[Column]:
@@ -306,7 +287,7 @@ class IniMerit:
 
     def __init__(self, design: Design, spec, cols: list[Column] | None = None, stride=None,
                  fields: int | None = None, pupil_nodes: int | None = None, efl_target=None,
-                 hinge_model: bool = False, image_hinges: bool = False):
+                 hinge_model: bool = False):
         if design.ini is None:
             raise ValueError(f"{design.path}: the design has no [ini] section")
         self.design0 = design
@@ -315,10 +296,6 @@ class IniMerit:
         #: signed hinges with their Jacobian at every row, whether or not the limit holds
         #: (:meth:`Rows.add_hinge`), for the ``lm-hinge`` solver's step model.
         self.hinge_model = bool(hinge_model)
-        #: With ``hinge_model``, the image figures' hinges too (:data:`IMAGE_HINGES`, the
-        #: ``lm-hinge-all`` solver): every field's signed excess over its limit with its
-        #: Jacobian, so that the step model sees the fields a step would push over.
-        self.image_hinges = self.hinge_model and bool(image_hinges)
         self.hinges = (np.zeros(0), None)
         self.cols = list(cols) if cols is not None else columns(design, spec)
         self.stride = tuple(stride or spec.stride)
@@ -546,35 +523,22 @@ class IniMerit:
         S, F, R = len(subs), subs.display.shape[1], len(self.rho)
         per = S if dense else max(1, MERIT_RAY_COPIES // ((K + 2 if derivatives else 1) * F * R))
         rows = Rows(K, derivatives, compress=not dense)
-
-        held = {name: [] for name in IMAGE_HINGES}
-
-        def add(name, r, j):  # an image hinge of the step model is held, to go where the constraints go
-            if self.image_hinges and name in held:
-                held[name].append((r, j))
-            else:
-                rows.add(name, r, j)
-
         parts = []
         for a in range(0, S, per):
             part = slice(a, min(S, a + per))
             st = self._sample(model, x, subs, ref, dref, part, derivatives, dense)
             for block in (self._lost, self._spot, self._gd, self._pa, self._distortion, self._recorded):
                 for name, r, j in block(st):
-                    add(name, r, j)
+                    rows.add(name, r, j)
             if self._colour0 is not None:
                 for name, r, j in self._colour(st, dref, part):
-                    add(name, r, j)
+                    rows.add(name, r, j)
             parts.append(st.figures)
         fig = {key: np.concatenate([p_[key] for p_ in parts]) for key in parts[0]}
         st.figures = fig
         gw = self._grid_weights(model, subs)
         for name, r, j in self._gd_mean(st, gw):
-            add(name, r, j)
-        for name, got in held.items():  # one block per figure, whatever the chunks: a fixed row order
-            if got:
-                rows.add_hinge(name, np.concatenate([np.ravel(r) for r, _ in got]),
-                               np.concatenate([np.reshape(j, (-1, K)) for _, j in got]) if derivatives else None)
+            rows.add(name, r, j)
         for block in (self._efl, self._fov, self._pixel):
             for name, r, j in block(st):
                 rows.add(name, r, j)
@@ -629,8 +593,7 @@ class IniMerit:
         per_state = ("efl", "fov", "pixel", "ei_pitch")  # references per CDP state, not per sub-system
         cut = {key: (v if key in per_state else v[sl]) for key, v in ref.items()}
         st = _Sample(model=model, x=x, derivatives=derivatives, K=K, subs=part, ref=cut, S=S, F=F, R=R,
-                     S_all=len(subs), dense=dense, hinge_model=self.image_hinges, ok=ok, pos=pos, r=r,
-                     surf=J.surf.reshape(S, F, R, nrec, 2),
+                     S_all=len(subs), dense=dense, ok=ok, pos=pos, r=r, surf=J.surf.reshape(S, F, R, nrec, 2),
                      cos_in=J.cos_in.reshape(S, F, R, nrec), nmla=len(self._crosstalk_surfaces(model)),
                      tirs=self._tir_surfaces(model), apertures=self._aperture_surfaces(model))
         st.figures["lost"] = (~ok).reshape(S, -1).sum(axis=1)
@@ -672,7 +635,7 @@ class IniMerit:
         if t.spot_axis_max_arcmin is None:
             return
         rms_a = np.sqrt(np.sum(wn[..., None] * off ** 2, axis=2)) * ARCMIN  # (S, F, 2)
-        valid = okg.any(-1)[..., None]
+        over = (rms_a > t.spot_axis_max_arcmin) & okg.any(-1)[..., None]
 
         def jac(ix):  # rows (S, F, axis) of d rms_a
             om = np.moveaxis(off, 2, -1)  # (S, F, 2, Q)
@@ -681,8 +644,7 @@ class IniMerit:
             return (np.sum((w_ * o_)[..., None] * do_, axis=-2) * ARCMIN ** 2
                     / np.maximum(rms_a[ix], 1e-300)[..., None]) * 10.0 * w.spot
 
-        yield ("spot_axis_max", *_hinge(st, valid, (rms_a - t.spot_axis_max_arcmin) * 10.0 * w.spot, jac,
-                                        st.hinge_model))
+        yield ("spot_axis_max", *_hinge(st, over, (rms_a - t.spot_axis_max_arcmin) * 10.0 * w.spot, jac))
 
     def _gd(self, st: _Sample):
         """GD (Eq. 11, metrics.distortion) on the centre field's chief ray against the
@@ -698,8 +660,8 @@ class IniMerit:
         yield ("gd", np.where(okc[:, None], gv, 0.0) * w.gd / math.sqrt(S),
                np.where(okc[:, None, None], dgv, 0.0) * w.gd / math.sqrt(S) if st.derivatives else None)
         if t.gd_max_deg is not None:
-            yield ("gd_max", *_hinge(st, okc, (gd - t.gd_max_deg) * 10.0 * w.gd, lambda ix: dgd[ix] * 10.0 * w.gd,
-                                     st.hinge_model))
+            over = okc & (gd > t.gd_max_deg)
+            yield ("gd_max", *_hinge(st, over, (gd - t.gd_max_deg) * 10.0 * w.gd, lambda ix: dgd[ix] * 10.0 * w.gd))
 
     def _gd_mean(self, st: _Sample, grid_weights):
         """The mean GD over the whole display beyond ``gd_mean_deg``: each sampled
@@ -712,9 +674,9 @@ class IniMerit:
         wm = np.where(okc, grid_weights, 0.0)
         wm = wm / wm.sum()
         mean = float(wm @ gd)
-        excess = np.array([(mean - t.gd_mean_deg) * 10.0 * w.gd])
-        yield ("gd_mean", *_hinge(st, np.array([True]), excess,
-                                  lambda ix: (wm @ fig["dgd"] * 10.0 * w.gd)[None][ix], st.hinge_model))
+        hit = mean > t.gd_mean_deg
+        jac = (wm @ fig["dgd"] * 10.0 * w.gd * hit)[None] if st.derivatives else None
+        yield "gd_mean", np.array([(mean - t.gd_mean_deg) * 10.0 * w.gd if hit else 0.0]), jac
 
     def _pa(self, st: _Sample):
         """PA (Eq. 12, metrics.footprint): the marginal rays' footprint errors, and each
@@ -733,8 +695,8 @@ class IniMerit:
         pa_ok = okm.all(-1)
         st.figures.update(pa=pa_f, pa_ok=pa_ok)
         if t.pa_max is not None:
-            yield ("pa_hinge", *_hinge(st, pa_ok, (pa_f - t.pa_max) * 10.0 * w.pa,
-                                       lambda ix: dpa_f[ix] * 10.0 * w.pa, st.hinge_model))
+            over = pa_ok & (pa_f > t.pa_max)
+            yield ("pa_hinge", *_hinge(st, over, (pa_f - t.pa_max) * 10.0 * w.pa, lambda ix: dpa_f[ix] * 10.0 * w.pa))
 
     def _colour(self, st: _Sample, dref, part: slice):
         """Lateral colour: each field's chief rays at the shortest and longest wavelengths
@@ -762,12 +724,13 @@ class IniMerit:
         scale = w.colour / math.sqrt(st.S_all * F)
         yield "colour", e * scale, de * scale if st.derivatives else None
         if t.lateral_colour_max_arcmin is not None:
+            over = ok & (mag > t.lateral_colour_max_arcmin)
+
             def jac(ix):
                 return (np.einsum("...a,...ak->...k", e[ix], de[ix]) / np.maximum(mag[ix], 1e-300)[..., None]
                         * 10.0 * w.colour)
 
-            yield ("colour_max", *_hinge(st, ok, (mag - t.lateral_colour_max_arcmin) * 10.0 * w.colour, jac,
-                                         st.hinge_model))
+            yield ("colour_max", *_hinge(st, over, (mag - t.lateral_colour_max_arcmin) * 10.0 * w.colour, jac))
 
     def _colour_details(self, fig: dict) -> dict:
         if "colour" not in fig:

@@ -32,7 +32,6 @@ from pathlib import Path
 import numpy as np
 
 from ..design.design import Design
-from ..design.optimize_section import HINGE_SOLVERS
 from ..fileio import save_figure, write_json
 from .imaging import ImagingMerit
 from .merit import IniMerit, columns
@@ -206,12 +205,11 @@ def optimize(design: Design, out_dir, stages=None, iterations: int | None = None
         t0 = time.perf_counter()
         if current.ini is not None:
             merit = IniMerit(current, plan.spec, cols=cols, stride=plan.stride, efl_target=efl_target,
-                             hinge_model=plan.solver in HINGE_SOLVERS,
-                             image_hinges=plan.solver == "lm-hinge-all")
+                             hinge_model=plan.solver == "lm-hinge")
             if spec.schedule is not None and efl_target is None:
                 efl_target = merit.efl_target
         else:
-            merit = ImagingMerit(current, plan.spec, cols=cols, hinge_model=plan.solver in HINGE_SOLVERS)
+            merit = ImagingMerit(current, plan.spec, cols=cols, hinge_model=plan.solver == "lm-hinge")
         lo, hi = merit.bounds
         x0 = np.clip(merit.x0, lo, hi)
         r0, _, det0 = merit.evaluate(x0, derivatives=False)
@@ -237,9 +235,9 @@ def optimize(design: Design, out_dir, stages=None, iterations: int | None = None
         def solve(resume_stage, plan=plan, merit=merit, x0=x0, lo=lo, hi=hi, ckpt=ckpt, scale=scale,
                   n_it=n_it, report=report):
             kw = dict(scale=scale, checkpoint=ckpt, resume=resume_stage, progress=progress, on_iteration=report)
-            if plan.solver in ("lm",) + HINGE_SOLVERS:
+            if plan.solver in ("lm", "lm-hinge"):
                 return levenberg_marquardt(merit, x0, Bounds(lo, hi), max_iterations=n_it,
-                                           hinges=plan.solver in HINGE_SOLVERS, **kw)
+                                           hinges=plan.solver == "lm-hinge", **kw)
             return adam(merit, x0, Bounds(lo, hi), iterations=n_it, **kw)
 
         try:
