@@ -37,6 +37,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from lfsim import load  # noqa: E402
+from lfsim.design.errors import DesignError  # noqa: E402
 from lfsim.fileio import save_figure, write_json  # noqa: E402
 from lfsim.optimize.merit import IniMerit  # noqa: E402
 from lfsim.optimize.solvers import Bounds, levenberg_marquardt  # noqa: E402
@@ -96,12 +97,16 @@ def plot(doc: dict, path: Path) -> None:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--design", default=str(ROOT / "scenes" / "ini_wearable_optimized.toml"))
-    ap.add_argument("--stage", default="gd")
-    ap.add_argument("--iterations", type=int, default=10)
-    ap.add_argument("--solvers", default=",".join(SOLVERS))
-    ap.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "solver_hinges.json"))
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0],
+                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    ap.add_argument("--design", default=str(ROOT / "scenes" / "ini_wearable_optimized.toml"),
+                    help="an [ini] design file with an [[optimize.stages]] schedule")
+    ap.add_argument("--stage", default="gd", help="the schedule's stage whose merit both solvers minimize")
+    ap.add_argument("--iterations", type=int, default=10, help="accepted steps per solver")
+    ap.add_argument("--solvers", default=",".join(SOLVERS),
+                    help=f"comma-separated, from {', '.join(SOLVERS)}; a name given twice runs twice (warm)")
+    ap.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "solver_hinges.json"),
+                    help="the JSON written (the plot beside it, .png)")
     a = ap.parse_args(argv)
     solvers = [s for s in a.solvers.split(",") if s]  # a name given twice runs twice (warm)
     bad = [s for s in solvers if s not in SOLVERS]
@@ -109,7 +114,11 @@ def main(argv=None) -> int:
         print(f"solver_hinges.py: --solvers {a.solvers!r} / --iterations {a.iterations}: solvers from "
               f"{', '.join(SOLVERS)}, at least one iteration", file=sys.stderr)
         return 2
-    design = load(a.design)
+    try:
+        design = load(a.design)
+    except DesignError as e:
+        print(f"solver_hinges.py: {e}", file=sys.stderr)
+        return 2
     names = [st.name for st in (design.optimize.schedule or [])] if design.optimize else []
     if a.stage not in names:
         print(f"solver_hinges.py: {a.design}: no stage {a.stage!r} in [[optimize.stages]] ({', '.join(names)})",

@@ -1014,7 +1014,7 @@ class IniMerit:
         fov = details.get("fov_deg")
         fov = f"; FOV {fov[len(fov) // 2][0]:.2f} x {fov[len(fov) // 2][1]:.2f} deg (middle CDP)" if fov else ""
         return (f"GD max {'undefined' if gd is None else f'{gd:.3f} deg'}, "
-                f"mean {'undefined' if mean is None else f'{mean:.3f} deg'} over the display{fov}")
+                f"mean {'undefined' if mean is None else f'{mean:.3f} deg'} over the display (the merit's sample){fov}")
 
     # Problem protocol
     def residuals(self, x) -> np.ndarray:
