@@ -123,3 +123,18 @@ def test_png_is_read_as_linear_values(tmp_path):
     assert np.mean(np.abs(png - img)) < 0.002  # rounding, not a gamma error (that would be ~0.1)
     doc = compare_images(read_image(tmp_path / "a.exr")[0], png)
     assert doc["psnr"] > 45
+
+
+def test_exposure_matched_ssim_sees_structure_not_brightness():
+    """A dimmed copy of an image: SSIM well under 1, exposure the dimming, matched SSIM 1; a
+    blurred copy keeps a matched SSIM under 1 (the structure's loss is not scaled away)."""
+    from lfsim.metrics.image import exposure, ssim, ssim_matched
+
+    rng = np.random.default_rng(3)
+    ref = rng.random((40, 50, 3))
+    assert ssim(ref, 0.35 * ref) < 0.6
+    assert exposure(ref, 0.35 * ref) == pytest.approx(0.35, rel=1e-12)
+    assert ssim_matched(ref, 0.35 * ref) == pytest.approx(1.0, abs=1e-12)
+    blur = 0.35 * (ref + np.roll(ref, 1, axis=0) + np.roll(ref, 1, axis=1)) / 3
+    assert ssim_matched(ref, blur) < 0.9
+    assert exposure(ref, np.zeros_like(ref)) is None and ssim_matched(ref, np.zeros_like(ref)) is None

@@ -36,6 +36,11 @@ def test_focal_stack_cli_writes_the_stack(scenes, tmp_path, capsys):
             cmp = compare_images(read_exr(out / nat["exr"])[0], img)
             assert abs(cmp["ssim"] - im["ssim_vs_natural"]) <= 1e-12
             assert abs(cmp["psnr"] - im["psnr_vs_natural"]) <= 1e-9
+            # Exposure: the mean light against the natural view's; the matched SSIM compares
+            # the display scaled to it (the ideal design's views have about 0.78 of the light).
+            nat_img = read_exr(out / nat["exr"])[0]
+            assert im["exposure_vs_natural"] == pytest.approx(img.mean() / nat_img.mean(), rel=1e-6)
+            assert 0.3 < im["exposure_vs_natural"] < 1.5 and -1 <= im["ssim_vs_natural_matched"] <= 1
     ei, hdr = read_exr(out / "elemental_images.exr")
     assert ei.shape == (9 * 125, 17 * 125, 3) and hdr["lfsim_kind"] == "elemental_images"
     assert (out / "contact_sheet.png").exists() and (out / "focus_cues.png").exists()

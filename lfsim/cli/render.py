@@ -51,12 +51,18 @@ def cmd_focal_stack(args) -> int:
           f"{doc['resolution'][0]}x{doc['resolution'][1]} px, {doc['total_s']:.1f} s -> {args.out}")
     for im in doc["images"]:
         ssim = (f"SSIM {im['ssim_vs_natural']:.3f}, PSNR {im['psnr_vs_natural']:.1f} dB"
-                if im["kind"] == "display" else "")
+                + _matched(im) if im["kind"] == "display" else "")
         print(f"  {im['kind']:8s} focus {im['focus_mm']:7.1f} mm  {im['render_s']:6.1f} s  {ssim}")
     for r in doc["focus_cues"]["sharpest"]:
         print(f"  sharpest band ({r['kind']}, focus {r['focus_diopters']:.2f} D): {r['sharpest_diopters']:.2f} D "
               f"(offset {r['offset_diopters']:+.2f} D)")
     return 0
+
+
+def _matched(im: dict) -> str:
+    """The console's note of a display view's exposure-matched SSIM (empty without one)."""
+    e, s = im.get("exposure_vs_natural"), im.get("ssim_vs_natural_matched")
+    return "" if e is None or s is None else f"; SSIM {s:.3f} at matched exposure ({e:.2f}x the light)"
 
 
 def cmd_export(args) -> int:

@@ -10,7 +10,12 @@ same pair of images gives the same numbers everywhere:
 * **SSIM**: scikit-image's ``structural_similarity`` (Wang et al., *IEEE
   Trans. Image Process.* 13(4), 600, 2004) with uniform 7×7
   windows (smaller on a side under 7 px) and that data range, computed per
-  channel and averaged over channels.
+  channel and averaged over channels;
+* **exposure**: the mean of an image over the reference's mean
+  (:func:`exposure`); :func:`ssim_matched` is the SSIM after the image is scaled
+  by its inverse, so that a display that sends less light into the eye (a
+  smaller aperture) is compared by its structure, not by its brightness, which
+  the display's drive sets.
 """
 
 from __future__ import annotations
@@ -51,3 +56,15 @@ def ssim(ref: np.ndarray, img: np.ndarray, rng: float | None = None) -> float | 
     if ref.shape[2] == 1:
         return float(structural_similarity(ref[..., 0], img[..., 0], data_range=rng, win_size=win))
     return float(structural_similarity(ref, img, data_range=rng, win_size=win, channel_axis=2))
+
+
+def exposure(ref: np.ndarray, img: np.ndarray) -> float | None:
+    """Mean of ``img`` over the mean of ``ref``; None when either mean is not positive."""
+    m_ref, m_img = float(np.mean(ref)), float(np.mean(img))
+    return m_img / m_ref if m_ref > 0 and m_img > 0 else None
+
+
+def ssim_matched(ref: np.ndarray, img: np.ndarray, rng: float | None = None) -> float | None:
+    """:func:`ssim` of ``img`` scaled to the mean of ``ref`` (None without a positive mean)."""
+    e = exposure(ref, img)
+    return None if e is None else ssim(ref, np.asarray(img, np.float64) / e, rng)

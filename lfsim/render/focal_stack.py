@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from ..content import VIEW_DEFAULTS
+from ..metrics.image import exposure, ssim_matched
 from . import mitsuba
 
 
@@ -405,6 +406,8 @@ def _focal_stack(design, content, out_dir, spec, progress, log, limits=None, ana
         if "natural" in pair and rec["kind"] != "natural":
             s, p = similarity(pair[rec["kind"]], pair["natural"])
             rec["ssim_vs_natural"], rec["psnr_vs_natural"] = s, (p if math.isfinite(p) else None)
+            rec["exposure_vs_natural"] = exposure(pair["natural"], pair[rec["kind"]])
+            rec["ssim_vs_natural_matched"] = ssim_matched(pair["natural"], pair[rec["kind"]])
     sheet = contact_sheet(out / "contact_sheet.png", spec.focus_mm, by_focus, spec, design, content)
     doc = {"design": design.path or design.name, "content": content.path, "cdp_mm": spec.cdp_mm,
            "cdp_diopters": cdp_D, "tunable_power_diopters": state.tunable_power_diopters,

@@ -268,7 +268,8 @@ def _write(design, out, raw, path, axes, keys, fixed, reference, points, seconds
             sub = out / "points" / f"{p['index']:04d}"
             index, _ = focal_stack(d, content, sub, render_spec, progress=False, log=lambda *a, **k: None)
             p["focal_stack"] = {"dir": str(sub.relative_to(out)), "images": [
-                {k: im.get(k) for k in ("kind", "focus_mm", "png", "ssim_vs_natural", "psnr_vs_natural")}
+                {k: im.get(k) for k in ("kind", "focus_mm", "png", "ssim_vs_natural", "psnr_vs_natural",
+                                           "exposure_vs_natural", "ssim_vs_natural_matched")}
                 for im in index["images"]]}
     units = {k: unit_of(design, k) for k in keys}
     doc = {"design": design.name, "file": design.path, "axes": {k: [float(v) for v in axes[k]] for k in keys},
