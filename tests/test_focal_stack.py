@@ -46,6 +46,9 @@ def test_focal_stack_cli_writes_the_stack(scenes, tmp_path, capsys):
     assert (out / "contact_sheet.png").exists() and (out / "focus_cues.png").exists()
     assert doc["tunable_power_diopters"] is not None and doc["cdp_mm"] == 750.0
     assert len(doc["focus_cues"]["sharpest"]) == 4
+    for r in doc["focus_cues"]["sharpest"]:  # a second peak, or none, with its height over the peak's
+        assert (r["runner_up_diopters"] is None) == (r["runner_up_ratio"] is None)
+        assert r["runner_up_ratio"] is None or 0 < r["runner_up_ratio"] <= 1
     # Colour by default: 8 nodes per primary, and the primaries they came from.
     assert doc["spectral"] and [len(w) for w in doc["wavelengths_nm"]] == [8, 8, 8]
     assert doc["primaries"]["source"] == "default" and doc["primaries"]["G"]["peak_nm"] == 530.0
@@ -164,3 +167,31 @@ def test_a_failed_render_leaves_an_existing_stack_as_it_was(scenes, tmp_path, ca
                        fs.FocalStackSpec(focus_mm=[1000.0], spp=1, resolution=(48, 27)), log=lambda m: None)
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
     assert [p.name for p in tmp_path.iterdir()] == ["fs"]  # no temporary folder left behind
+
+
+def test_the_runner_up_peak_of_a_sharpness_profile():
+    """Two Gaussian bumps: the sharpest band is the higher one's centre (parabola-refined on the
+    three-band smoothed profile), the runner-up the lower one's, with the ratio of their smoothed
+    heights; one bump has no runner-up, and a shoulder within 0.15 D of the peak is not one."""
+    from lfsim.vision.focus_cues import _smoothed, peak_diopters, runner_up
+
+    D = np.linspace(0.6, 2.0, 57)
+    rng = np.random.default_rng(1)
+    order = rng.permutation(len(D))  # the profile's bands come in image-column order, not by depth
+
+    def bump(c, h, w=0.08):
+        return h * np.exp(-0.5 * ((D - c) / w) ** 2)
+
+    S = 0.1 + bump(1.3, 1.0) + bump(0.9, 0.8)
+    assert peak_diopters(D[order], S[order]) == pytest.approx(1.3, abs=0.01)
+    second = runner_up(D[order], S[order])
+    Ds, Ss = _smoothed(D, S)
+    assert second[0] == pytest.approx(0.9, abs=0.01)
+    assert second[1] == pytest.approx(Ss[np.argmin(abs(Ds - 0.9))] / Ss.max(), rel=1e-3)
+    assert 0.7 < second[1] < 0.9
+    # Equal bumps: the ratio reaches 1, whichever is called the peak.
+    S2 = 0.1 + bump(1.3, 1.0) + bump(0.9, 1.0)
+    assert runner_up(D, S2)[1] == pytest.approx(1.0, abs=1e-9)
+    assert runner_up(D, 0.1 + bump(1.3, 1.0)) is None
+    assert runner_up(D, 0.1 + bump(1.3, 1.0) + bump(1.4, 0.9, w=0.02)) is None  # a shoulder, not a peak
+    assert runner_up(D[:2], S[:2]) is None and runner_up(D, np.zeros_like(D)) is None

@@ -14,7 +14,7 @@ def cmd_focal_stack(args) -> int:
     from pathlib import Path
 
     from ..render.focal_stack import FocalStackSpec
-    from ..vision.focus_cues import focal_stack
+    from ..vision.focus_cues import RUNNER_UP_NOTE_RATIO, focal_stack
 
     content, design_path, design, focus, cdp, pupil = _view_of(args, "lfsim focal-stack")
     if args.spp < 1:
@@ -54,8 +54,15 @@ def cmd_focal_stack(args) -> int:
                 + _matched(im) if im["kind"] == "display" else "")
         print(f"  {im['kind']:8s} focus {im['focus_mm']:7.1f} mm  {im['render_s']:6.1f} s  {ssim}")
     for r in doc["focus_cues"]["sharpest"]:
+        if r["sharpest_diopters"] is None:
+            print(f"  sharpest band ({r['kind']}, focus {r['focus_diopters']:.2f} D): none (no band has content)")
+            continue
+        second = ""
+        if (r.get("runner_up_ratio") or 0.0) >= RUNNER_UP_NOTE_RATIO:
+            second = (f"; a second peak at {r['runner_up_diopters']:.2f} D reaches "
+                      f"{100 * r['runner_up_ratio']:.0f}% of it")
         print(f"  sharpest band ({r['kind']}, focus {r['focus_diopters']:.2f} D): {r['sharpest_diopters']:.2f} D "
-              f"(offset {r['offset_diopters']:+.2f} D)")
+              f"(offset {r['offset_diopters']:+.2f} D{second})")
     return 0
 
 

@@ -76,16 +76,18 @@ def sharpness_profile(img: np.ndarray, reference: np.ndarray, depth_mm: np.ndarr
     return np.array(D), np.array(S)
 
 
-def peak_diopters(D: np.ndarray, S: np.ndarray) -> float | None:
-    """Depth (D) of the sharpest band, refined by a parabola through it and its neighbours;
-    None when no band has content."""
-    if len(S) == 0:
-        return None
+def _smoothed(D: np.ndarray, S: np.ndarray):
+    """The profile in increasing depth (D), smoothed over three bands."""
     order = np.argsort(D)
     D, S = D[order], S[order]
     if len(S) >= 3:
         S = np.convolve(np.pad(S, 1, mode="edge"), np.ones(3) / 3.0, mode="valid")
-    i = int(np.argmax(S))
+    return D, S
+
+
+def _refine(D: np.ndarray, S: np.ndarray, i: int) -> float:
+    """Band ``i``'s depth refined by the parabola through it and its neighbours (kept when
+    its vertex is a maximum between them)."""
     if 0 < i < len(D) - 1:
         (x0, x1, x2), (y0, y1, y2) = D[i - 1:i + 2], S[i - 1:i + 2]
         if x0 < x1 < x2:  # the parabola through the three points, in closed form
@@ -96,6 +98,47 @@ def peak_diopters(D: np.ndarray, S: np.ndarray) -> float | None:
                 if x0 <= v <= x2:
                     return float(v)
     return float(D[i])
+
+
+def peak_diopters(D: np.ndarray, S: np.ndarray) -> float | None:
+    """Depth (D) of the sharpest band, refined by a parabola through it and its neighbours;
+    None when no band has content."""
+    if len(S) == 0:
+        return None
+    D, S = _smoothed(D, S)
+    return _refine(D, S, int(np.argmax(S)))
+
+
+#: A second peak of the smoothed profile counts when it lies this far (D) from the sharpest band.
+RUNNER_UP_MIN_SEPARATION_D = 0.15
+#: ``lfsim focal-stack`` names a second peak on the console when it reaches this fraction of the peak.
+RUNNER_UP_NOTE_RATIO = 0.95
+
+
+def runner_up(D: np.ndarray, S: np.ndarray) -> tuple[float, float] | None:
+    """The smoothed profile's highest local maximum other than its peak, at least
+    :data:`RUNNER_UP_MIN_SEPARATION_D` from it: ``(depth in D, its height over the peak's)``;
+    None when the profile has no such second peak.
+
+    A profile with two near-equal peaks has a sharpest band that Monte Carlo noise can move
+    from one to the other: the ratio says how firmly the band is the sharpest."""
+    if len(S) < 3:
+        return None
+    D, S = _smoothed(D, S)
+    top = int(np.argmax(S))
+    if S[top] <= 0:
+        return None
+    best = None
+    for i in range(len(S)):
+        left = S[i - 1] if i > 0 else -np.inf
+        right = S[i + 1] if i < len(S) - 1 else -np.inf
+        if i == top or not (S[i] > left and S[i] >= right) or abs(D[i] - D[top]) < RUNNER_UP_MIN_SEPARATION_D:
+            continue
+        if best is None or S[i] > S[best]:
+            best = i
+    if best is None:
+        return None
+    return _refine(D, S, best), float(S[best] / S[top])
 
 
 def analyze(stack: dict, content_scene, out_dir=None, bands: int = 24) -> dict:
@@ -114,12 +157,15 @@ def analyze(stack: dict, content_scene, out_dir=None, bands: int = 24) -> dict:
     for (kind, f), img in sorted(stack["images"].items(), key=lambda kv: (kv[0][0], kv[0][1])):
         D, S = sharpness_profile(img, ref, depth, bands)
         peak = peak_diopters(D, S)
+        second = runner_up(D, S)
         focus_D = 1000.0 / f
         far = np.abs(D - focus_D) > 0.5
         rows.append({"kind": kind, "focus_mm": float(f), "focus_diopters": focus_D,
                      "sharpest_diopters": peak, "offset_diopters": None if peak is None else peak - focus_D,
                      "sharpness_peak": float(np.max(S)) if len(S) else None,
                      "sharpness_far_mean": float(np.mean(S[far])) if np.any(far) else None,
+                     "runner_up_diopters": None if second is None else second[0],
+                     "runner_up_ratio": None if second is None else second[1],
                      "profile_diopters": [float(v) for v in D], "profile_sharpness": [float(v) for v in S]})
     seen = np.isfinite(depth)
     span = [float(np.min(1000 / depth[seen])), float(np.max(1000 / depth[seen]))] if seen.any() else None
@@ -172,7 +218,7 @@ def index_entry(stack: dict, content_scene, out) -> dict:
     entry of its ``index.json`` (an analysis for :func:`lfsim.render.focal_stack.focal_stack`)."""
     cues = analyze(stack, content_scene, out)
     keep = ("kind", "focus_mm", "focus_diopters", "sharpest_diopters", "offset_diopters", "sharpness_peak",
-            "sharpness_far_mean")
+            "sharpness_far_mean", "runner_up_diopters", "runner_up_ratio")
     return {"json": "focus_cues.json", "png": cues["plot"],
             "sharpest": [{k: r[k] for k in keep} for r in cues["results"]]}
 
