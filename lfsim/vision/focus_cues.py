@@ -146,7 +146,7 @@ def analyze(stack: dict, content_scene, out_dir=None, bands: int = 24) -> dict:
 
     ``stack``: {"fov_deg", "images": {(kind, focus_mm): image}, "reference": image}.
     Returns per focus distance and kind: the sharpest band's depth (D), its
-    offset from the focus (D), and the profile; writes ``focus_cues.png`` and
+    offset from the focus (D), the runner-up peak (:func:`runner_up`), and the profile; writes ``focus_cues.png`` and
     ``focus_cues.json`` to ``out_dir`` when given.
     """
     ref = stack["reference"]
