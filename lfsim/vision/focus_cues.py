@@ -196,17 +196,22 @@ def plot(doc: dict, path) -> str:
         rs = [r for r in doc["results"] if r["kind"] == kind]
         for i, r in enumerate(rs):
             c = colors[i % len(colors)]
-            ax.plot(r["profile_diopters"], r["profile_sharpness"], "o-", ms=3, color=c,
-                    label=f"focus {r['focus_mm']:g} mm ({r['focus_diopters']:.2f} D)")
+            ax.plot(r["profile_diopters"], r["profile_sharpness"], "o", ms=3, color=c, alpha=0.6)
+            Ds, Ss = _smoothed(np.asarray(r["profile_diopters"]), np.asarray(r["profile_sharpness"]))
+            ax.plot(Ds, Ss, "-", color=c, label=f"focus {r['focus_mm']:g} mm ({r['focus_diopters']:.2f} D)")
             ax.axvline(r["focus_diopters"], color=c, ls=":", lw=1)
             if r["sharpest_diopters"] is not None:
                 ax.axvline(r["sharpest_diopters"], color=c, ls="--", lw=1)
+            if (r.get("runner_up_ratio") or 0.0) >= RUNNER_UP_NOTE_RATIO:
+                ax.axvline(r["runner_up_diopters"], color=c, ls="-.", lw=0.8)
         ax.set_xlabel("depth of the content along the wall (D)")
         ax.set_ylabel("sharpness / pinhole view")
         ax.set_title("through the display" if kind == "display" else "natural view")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    fig.suptitle("Focus cues: dotted = focus distance, dashed = sharpest band", fontsize=10)
+    fig.suptitle("Focus cues: points = bands, line = smoothed over three bands; dotted = focus distance, "
+                 f"dashed = sharpest band, dash-dot = a second peak at >= {100 * RUNNER_UP_NOTE_RATIO:.0f}% of it",
+                 fontsize=9)
     fig.tight_layout()
     save_figure(fig, path, dpi=110)
     plt.close(fig)
