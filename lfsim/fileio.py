@@ -18,7 +18,10 @@ def atomic_path(path: str | Path):
     """Yield a temporary path beside ``path``; rename it to ``path`` on success."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix or ".tmp", dir=path.parent)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix or ".tmp", dir=path.parent)
+    except OSError as e:  # name the file asked for, not the temporary one beside it
+        raise OSError(e.errno, e.strerror, str(path)) from None
     os.close(fd)
     os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; a plain open() would honour the umask
     try:
@@ -42,6 +45,8 @@ def check_replaceable(path: str | Path, manifest: str | None, flag: str = "--out
         return
     if not p.is_dir():
         raise ValueError(f"{flag} = {str(path)!r}: exists and is not a folder")
+    if os.path.ismount(p):  # the output replaces the folder as a whole, which a mount point cannot be
+        raise ValueError(f"{flag} = {str(path)!r}: a mount point cannot be replaced; give a folder inside it")
     if manifest is not None and (p / manifest).is_file():
         return
     if any(p.iterdir()):
@@ -66,7 +71,10 @@ def atomic_dir(path: str | Path, manifest: str | None = None, flag: str = "--out
     check_replaceable(path, manifest, flag)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    try:  # the new folder is made beside ``path``, so its parent must take it
+        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    except OSError as e:
+        raise ValueError(f"{flag} = {str(path)!r}: cannot write in {path.parent} ({e.strerror})") from None
     os.chmod(tmp, 0o777 & ~_umask())
     try:
         yield tmp

@@ -322,6 +322,43 @@ def test_folder_output_is_replaced_whole_on_a_rerun(scenes, tmp_path, capsys):
     assert main(["layout", str(scenes / "cooke_triplet.toml"), "--out", str(empty)]) == 0
 
 
+def test_folder_outputs_name_the_folder_given_when_it_cannot_be_written(scenes, tmp_path, capsys, monkeypatch):
+    """A folder output is made beside --out and then swapped in: a parent that refuses the new
+    folder (a read-only file system) is named with the option and the folder given, not the
+    temporary name; a mount point, which no swap can replace, is refused before any work."""
+    import errno
+    import os
+    import tempfile
+    from pathlib import Path
+
+    out = tmp_path / "ro" / "x"
+    out.parent.mkdir()
+    real = tempfile.mkdtemp
+
+    def read_only(*a, dir=None, **kw):
+        if dir is not None and Path(dir) == out.parent:
+            raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(Path(dir) / ".x.abc123.tmp"))
+        return real(*a, dir=dir, **kw)
+
+    monkeypatch.setattr(tempfile, "mkdtemp", read_only)
+    argv = ["focal-stack", str(scenes / "ini_ideal.toml"), "--out", str(out), "--resolution", "16,9", "--spp", "1"]
+    err = _fails_fast(capsys, argv, "--out")
+    assert err == f"lfsim: error: --out = {str(out)!r}: cannot write in {out.parent} ({os.strerror(errno.EROFS)})"
+    assert list(out.parent.iterdir()) == []
+    monkeypatch.setattr(tempfile, "mkdtemp", real)
+
+    mount = tmp_path / "mnt"
+    mount.mkdir()
+    real_ismount = os.path.ismount
+    monkeypatch.setattr(os.path, "ismount", lambda p: Path(p) == mount or real_ismount(p))
+    for argv in (["layout", str(scenes / "cooke_triplet.toml"), "--out", str(mount)],
+                 ["focal-stack", str(scenes / "ini_ideal.toml"), "--out", str(mount), "--resolution", "16,9",
+                  "--spp", "1"]):
+        err = _fails_fast(capsys, argv, "--out")
+        assert "a mount point cannot be replaced" in err, err
+        assert list(mount.iterdir()) == [] and sorted(p.name for p in tmp_path.iterdir()) == ["mnt", "ro"]
+
+
 def test_human_output_has_units_and_no_python_reprs(scenes, tmp_path, capsys):
     """Printed numbers carry units; no None, tuple reprs or float rounding noise about zero."""
     import re
