@@ -35,7 +35,8 @@ def freeform_merit(tmp_path_factory):
                 ["S3.x2y0", "S4.x2y1", "S1.curvature", "A1a.curvature", "object.distance", "tunable"],
                 targets={"spot_axis_max_arcmin": 0.5, "gd_mean_deg": 0.3, "min_prism_thickness": 25.0,
                          "aperture_margin_mm": 1.0, "fov_deg": [30.0, 18.0],
-                         "pixel_arcmin": [3.0, 3.0], "display_mismatch_max": 0.0})
+                         "pixel_arcmin": [3.0, 3.0], "display_mismatch_max": 0.0,
+                         "footprint_max_mm": 1.6})
     return IniMerit(d, d.optimize)
 
 
@@ -53,7 +54,7 @@ def _central(M, x0, j: int, h: float, rows) -> np.ndarray:
 
 def test_merit_jacobian_matches_central_differences(freeform_merit):
     """Every residual block (spot, spot per axis, GD, PA, distortion, crosstalk, TIR,
-    apertures, EFL, FOV, pixel, display, thickness) against
+    apertures, EFL, FOV, pixel, display, footprint, thickness) against
     central differences of the exact residuals: rays re-aimed, display layout and
     paraxial references moving with the design."""
     M = freeform_merit
@@ -62,6 +63,7 @@ def test_merit_jacobian_matches_central_differences(freeform_merit):
     assert np.isfinite(r).all() and np.isfinite(J).all() and det["rays_lost"] == 0
     assert det["spot_axis_max"] > 0 and det["gd_max"] > 0 and det["gd_mean"] > 0  # the hinge blocks are active
     assert det["prism_thickness"] > 0 and det["fov"] > 0 and det["pixel"] > 0 and det["display"] > 0
+    assert det["footprint"] > 0 and min(det["footprint_mm"]) > 1.6
     assert sum(v for k, v in det.items() if k.startswith("aperture_")) > 0  # rays within the margin
     for j in range(len(x0)):
         h = 1e-6 * max(1.0, abs(x0[j])) if M.cols[j].state is None else 1e-4
@@ -584,3 +586,24 @@ def test_a_tunable_lens_that_is_not_a_variable_is_held(scenes, tmp_path):
                 assert np.abs(fd[blk] - J[blk, j]).max(initial=0.0) <= 2e-5 * scale + 1e-7, (M.cols[j].label, name)
     x1 = x0 * (1.0 + 1e-3)
     assert M.design_at(x1).ini.tunable_power_diopters == pytest.approx(p0, abs=1e-12)
+
+
+def test_footprint_block_is_eq5_of_each_state(freeform_merit):
+    """The ``footprint`` block's figure per CDP state is ``lfsim ini``'s d_v of Eq. (5) (the mean
+    of its x and y widths, the reference PA divides by); the hinge reads (d_v − limit)/limit in %
+    times its weight."""
+    from lfsim.ini.model import IniModel
+
+    M = freeform_merit
+    r, _, det = M.evaluate(M.x0, derivatives=False, dense=True)
+    mo = IniModel(M.design_at(M.x0))
+    want = [float(np.mean(mo.state(k).d_v)) for k in range(len(mo.depths))]
+    assert det["footprint_mm"] == pytest.approx(want, rel=1e-12)
+    a = 0
+    for name, n in M.layout:
+        if name == "footprint":
+            rows = r[a:a + n]
+        a += n
+    w, lim = M.spec.weights.footprint, M.spec.targets.footprint_max_mm
+    assert rows == pytest.approx([(v - lim) / lim * 100.0 * w for v in want], rel=1e-12)
+    assert det["footprint"] == pytest.approx(float(rows @ rows), rel=1e-12)

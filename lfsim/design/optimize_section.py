@@ -45,6 +45,9 @@ Schema (units mm, degrees, diopters)::
     display_mismatch_max = 0.5  # optional: how many EIs the layout of Eq. 2 (M EIs of p_EI) may
                              # differ from the display (M x pixels_per_ei x pixel_pitch) across it,
                              # per CDP state and axis; the renderer refuses more than 1; absent: off
+    footprint_max_mm = 1.5   # optional: the widest footprint d_v (Eq. 5) of a view on the window
+                             # in every CDP state, so that pupil / d_v views fall in the eye
+                             # pupil (2 in a 3 mm pupil at 1.5 mm); absent: off
     min_center_thickness = 0.3    # mm, glass, >= 0
     min_edge_thickness = 0.3      # mm, glass, >= 0
     min_air_gap = 0.1             # mm, >= 0
@@ -70,6 +73,7 @@ Schema (units mm, degrees, diopters)::
     fov = 10.0               # per % of the FOV target
     pixel = 10.0             # per % of the pixel target
     display = 10.0           # per % of one EI beyond display_mismatch_max
+    footprint = 10.0         # per % of d_v beyond footprint_max_mm
     thickness = 1.0
     tir = 1.0
     package = 1.0            # per µm beyond a package limit
@@ -168,6 +172,7 @@ class OptimizeTargets:
     fov_deg: tuple[float, float] | None = None
     pixel_arcmin: tuple[float, float] | None = None
     display_mismatch_max: float | None = None
+    footprint_max_mm: float | None = None
     min_center_thickness: float = 0.3
     min_edge_thickness: float = 0.3
     min_air_gap: float = 0.1
@@ -212,6 +217,7 @@ class OptimizeWeights:
     fov: float = 10.0
     pixel: float = 10.0
     display: float = 10.0
+    footprint: float = 10.0
     thickness: float = 1.0
     tir: float = 1.0
     package: float = 1.0
@@ -380,7 +386,7 @@ def _targets(ctx, tab, p="optimize.targets") -> OptimizeTargets:
     ctx.no_unknown(tab, TARGET_KEYS, p)
     kw = {}
     for key in ("gd_max_deg", "gd_mean_deg", "pa_max", "local_distortion_max", "spot_axis_max_arcmin",
-                "lateral_colour_max_arcmin"):
+                "lateral_colour_max_arcmin", "footprint_max_mm"):
         if key in tab:
             kw[key] = ctx.number(tab, key, p, positive=True)
     for key, top, allowed in (("crosstalk_margin", 0.5, "a fraction of the lenslet pitch in [0, 0.5)"),

@@ -35,6 +35,9 @@ fov           full FOV per CDP state and axis, % from ``fov_deg``
 pixel         one display pixel seen from the window per CDP state and axis, % from ``pixel_arcmin``
 display       the EI layout (Eq. 2) wider or narrower than the display across the array, per CDP
               state and axis, beyond ``display_mismatch_max`` EIs, % of one EI (a hinge)
+footprint     the footprint width d_v of a view on the viewing window (Eq. 5, the mean of its x
+              and y widths, PA's reference) per CDP state beyond ``footprint_max_mm``, % of the
+              limit (a hinge): pupil / d_v views fall in the eye pupil
 thickness     centre thickness of glass / air gaps below their minimum, and
               edge thickness of glass elements at their clear radius, µm
 package       the mechanical package (:mod:`lfsim.ini.package`) beyond its limits:
@@ -542,8 +545,11 @@ class IniMerit:
         for block in (self._efl, self._fov, self._pixel):
             for name, r, j in block(st):
                 rows.add(name, r, j)
+        def footprint_block(_st):
+            return self._footprint(subs, ref, dref, derivatives, K)
+
         for block in (self._thickness, self._edge_thickness, self._prism_thickness_block, self._package,
-                      self._display):
+                      self._display, footprint_block):
             for name, r, j in block(st):
                 if self.hinge_model:  # signed excess with its Jacobian everywhere (the step model's)
                     rows.add_hinge(name, r, j)
@@ -569,7 +575,8 @@ class IniMerit:
                        rays=self.rays, rays_lost=int(fig["lost"].sum()),
                        efl_mm=[float(v) for v in ref["efl"]], fov_deg=ref["fov"].tolist(),
                        pixel_arcmin=ref["pixel"].tolist(),
-                       display_mismatch_ei=model.display_mismatch(ref["ei_pitch"]).tolist())
+                       display_mismatch_ei=model.display_mismatch(ref["ei_pitch"]).tolist(),
+                       footprint_mm=self._footprint_widths(subs, ref)[0].tolist())
         self.details = details
         return r_all, J_all, details
 
@@ -879,6 +886,33 @@ class IniMerit:
             return
         over = g > 0.0
         yield "display", np.where(over, g, 0.0), (np.where(over[..., None], jac, 0.0) if jac is not None else None)
+
+    @staticmethod
+    def _footprint_widths(subs, ref):
+        """(d_v per CDP state (states,), the first sampled sub-system of each state): every
+        sub-system of a state has its state's d_v."""
+        _, first = np.unique(np.asarray(subs.k), return_index=True)
+        return np.asarray(ref["d_v"], dtype=np.float64)[first], first
+
+    def _footprint(self, subs, ref, dref, derivatives: bool, K: int):
+        """The footprint width d_v (Eq. 5; the mean of x and y, PA's reference) per CDP state
+        beyond ``footprint_max_mm``, % of the limit: with a pupil of diameter P about P / d_v
+        views fall in it, and fewer than two no longer give a focus cue (Section 5). Its
+        derivative is the first-order model's (central differences, as PA's reference)."""
+        t, w = self.spec.targets, self.spec.weights
+        if t.footprint_max_mm is None:
+            return
+        d, first = self._footprint_widths(subs, ref)
+        unit = 100.0 * w.footprint / t.footprint_max_mm
+        g = (d - t.footprint_max_mm) * unit
+        jac = None
+        if derivatives:
+            jac = (np.asarray(dref["d_v"], dtype=np.float64)[first] if K else np.zeros((d.size, 0))) * unit
+        if self.hinge_model:
+            yield "footprint", g, jac
+            return
+        over = g > 0.0
+        yield "footprint", np.where(over, g, 0.0), (np.where(over[:, None], jac, 0.0) if jac is not None else None)
 
     def _thickness(self, st: _Sample):
         """Centre thickness of variable glass thicknesses and air gaps below their minimum, µm."""
