@@ -45,9 +45,10 @@ Schema (units mm, degrees, diopters)::
     display_mismatch_max = 0.5  # optional: how many EIs the layout of Eq. 2 (M EIs of p_EI) may
                              # differ from the display (M x pixels_per_ei x pixel_pitch) across it,
                              # per CDP state and axis; the renderer refuses more than 1; absent: off
-    footprint_max_mm = 1.5   # optional: the widest footprint d_v (Eq. 5) of a view on the window
-                             # in every CDP state, so that pupil / d_v views fall in the eye
-                             # pupil (2 in a 3 mm pupil at 1.5 mm); absent: off
+    footprint_max_mm = 1.5   # optional: the footprint d_v (Eq. 5, the mean of its x and y widths)
+                             # of a view on the window in every CDP state at most this, so that
+                             # pupil / d_v views fall in the eye pupil (2 in a 3 mm pupil at 1.5 mm);
+                             # absent: off
     min_center_thickness = 0.3    # mm, glass, >= 0
     min_edge_thickness = 0.3      # mm, glass, >= 0
     min_air_gap = 0.1             # mm, >= 0
