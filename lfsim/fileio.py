@@ -68,8 +68,8 @@ def atomic_dir(path: str | Path, manifest: str | None = None, flag: str = "--out
     """
     import shutil
 
+    path = Path(os.path.abspath(path))  # "x/.." is the folder above x, and x need not exist
     check_replaceable(path, manifest, flag)
-    path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     try:  # the new folder is made beside ``path``, so its parent must take it
         tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))

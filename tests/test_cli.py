@@ -357,6 +357,13 @@ def test_folder_outputs_name_the_folder_given_when_it_cannot_be_written(scenes, 
         err = _fails_fast(capsys, argv, "--out")
         assert "a mount point cannot be replaced" in err, err
         assert list(mount.iterdir()) == [] and sorted(p.name for p in tmp_path.iterdir()) == ["mnt", "ro"]
+    # A path that climbs out of a folder that does not exist names the folder above it, which
+    # holds a user's files here: refused before any work, and the missing folder is not made.
+    (tmp_path / "mnt" / "keep.txt").write_text("mine")
+    argv = ["layout", str(scenes / "cooke_triplet.toml"), "--out", str(tmp_path / "mnt" / "nope" / "..")]
+    err = _fails_fast(capsys, argv, "--out")
+    assert "a mount point cannot be replaced" in err or "not a previous output" in err, err
+    assert sorted(p.name for p in (tmp_path / "mnt").iterdir()) == ["keep.txt"]
 
 
 def test_human_output_has_units_and_no_python_reprs(scenes, tmp_path, capsys):
