@@ -90,14 +90,10 @@ def band_mtf(lum: np.ndarray, px_arcmin: float, band_cpd: tuple[float, float]) -
 def peak(states: np.ndarray, scores: np.ndarray) -> float:
     """The accommodation of a curve's maximum: the best state, refined by the vertex of the
     parabola through it and its two neighbours (kept between them)."""
-    i = int(np.argmax(scores))
-    if i == 0 or i == len(scores) - 1:
-        return float(states[i])
-    x, y = states[i - 1:i + 2], scores[i - 1:i + 2]
-    a, b, _ = np.polyfit(x - x[1], y, 2)
-    if a >= 0:
-        return float(states[i])
-    return float(np.clip(x[1] - b / (2 * a), x[0], x[2]))
+    from .focus_cues import refine_peak
+
+    return refine_peak(np.asarray(states, dtype=np.float64), np.asarray(scores, dtype=np.float64),
+                       int(np.argmax(scores)))
 
 
 def sweep_states(target_d: float, cdp_d: float, spec: AccommodationSpec) -> np.ndarray:

@@ -85,9 +85,10 @@ def _smoothed(D: np.ndarray, S: np.ndarray):
     return D, S
 
 
-def _refine(D: np.ndarray, S: np.ndarray, i: int) -> float:
-    """Band ``i``'s depth refined by the parabola through it and its neighbours (kept when
-    its vertex is a maximum between them)."""
+def refine_peak(D: np.ndarray, S: np.ndarray, i: int) -> float:
+    """Sample ``i``'s abscissa refined by the vertex of the parabola through it and its two
+    neighbours (``D`` increasing), when that vertex is a maximum between them; ``D[i]``
+    itself at either end, or where the parabola opens upward."""
     if 0 < i < len(D) - 1:
         (x0, x1, x2), (y0, y1, y2) = D[i - 1:i + 2], S[i - 1:i + 2]
         if x0 < x1 < x2:  # the parabola through the three points, in closed form
@@ -106,7 +107,7 @@ def peak_diopters(D: np.ndarray, S: np.ndarray) -> float | None:
     if len(S) == 0:
         return None
     D, S = _smoothed(D, S)
-    return _refine(D, S, int(np.argmax(S)))
+    return refine_peak(D, S, int(np.argmax(S)))
 
 
 #: A second peak of the smoothed profile counts when it lies this far (D) from the sharpest band.
@@ -138,7 +139,7 @@ def runner_up(D: np.ndarray, S: np.ndarray) -> tuple[float, float] | None:
             best = i
     if best is None:
         return None
-    return _refine(D, S, best), float(S[best] / S[top])
+    return refine_peak(D, S, best), float(S[best] / S[top])
 
 
 def analyze(stack: dict, content_scene, out_dir=None, bands: int = 24) -> dict:
