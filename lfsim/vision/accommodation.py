@@ -34,6 +34,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .focus_cues import refine_peak
+
 #: Reference wavelength of an accommodation state (nm): the photopic luminosity peak.
 REFERENCE_NM = 555.0
 METRIC = "mean retinal MTF over 3-10 cpd (luminance)"
@@ -90,8 +92,6 @@ def band_mtf(lum: np.ndarray, px_arcmin: float, band_cpd: tuple[float, float]) -
 def peak(states: np.ndarray, scores: np.ndarray) -> float:
     """The accommodation of a curve's maximum: the best state, refined by the vertex of the
     parabola through it and its two neighbours (kept between them)."""
-    from .focus_cues import refine_peak
-
     return refine_peak(np.asarray(states, dtype=np.float64), np.asarray(scores, dtype=np.float64),
                        int(np.argmax(scores)))
 
