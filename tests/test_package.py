@@ -29,7 +29,8 @@ SHIPPED = sorted(SCENES.glob("ini_*.toml"))
 
 KEYS = ("track_mm", "max_clear_diameter_mm", "clear_diameters_mm", "tunable_clear_aperture_mm",
         "tunable_footprint_mm", "bounding_box_mm", "bounding_box_min_mm", "bounding_box_max_mm", "prism_box_mm",
-        "min_center_thickness_mm", "min_edge_thickness_mm", "min_prism_thickness_mm", "eye_relief_mm")
+        "prism_footprint_box_mm", "min_center_thickness_mm", "min_edge_thickness_mm", "min_prism_thickness_mm",
+        "eye_relief_mm")
 
 G = SMALL["g"]  # display gap
 T_VW = SMALL["t_vw"]  # M2 -> VW
@@ -67,7 +68,7 @@ def test_keys_present_and_finite_on_shipped_designs(path):
     has_tunable = design.ini.tunable is not None
     optional = {  # key -> whether the figure applies to this design
         "tunable_clear_aperture_mm": has_tunable, "tunable_footprint_mm": has_tunable,
-        "prism_box_mm": has_prism, "min_prism_thickness_mm": has_prism,
+        "prism_box_mm": has_prism, "prism_footprint_box_mm": has_prism, "min_prism_thickness_mm": has_prism,
         "max_clear_diameter_mm": bool(p["clear_diameters_mm"]),
     }
     for key in KEYS:
@@ -116,6 +117,7 @@ def test_edge_thickness_is_the_sphere_sag_closed_form(small):
     assert p["min_edge_thickness_mm"] == pytest.approx(e_w, abs=1e-12)
     assert p["min_center_thickness_mm"] == pytest.approx(2.0, abs=1e-12)
     assert p["min_prism_thickness_mm"] is None and p["prism_box_mm"] is None
+    assert p["prism_footprint_box_mm"] is None
 
 
 @pytest.mark.parametrize("l1_thickness", [None, 1.1])
@@ -349,6 +351,8 @@ def test_against_the_tracers_recorded_path(name):
     assert p["tunable_footprint_mm"] == pytest.approx(foot, abs=1e-9)
     if faces:  # every ray hit on a prism face lies inside the boxes (sampled apertures: 3 µm)
         assert np.all(hi - lo <= np.array(p["prism_box_mm"]) + 0.005)
+        # the footprint box is exactly the extent of those hits
+        assert np.allclose(p["prism_footprint_box_mm"], hi - lo, rtol=0, atol=1e-9)
         assert np.all(lo >= np.array(p["bounding_box_min_mm"]) - 0.005)
         assert np.all(hi <= np.array(p["bounding_box_max_mm"]) + 0.005)
 

@@ -194,7 +194,7 @@ def package(model: IniModel, solids: bool = True) -> dict:
     Keys (``docs/contracts.md``): ``track_mm``, ``max_clear_diameter_mm``,
     ``clear_diameters_mm``, ``tunable_clear_aperture_mm``,
     ``tunable_footprint_mm``, ``bounding_box_mm``, ``bounding_box_min_mm``,
-    ``bounding_box_max_mm``, ``prism_box_mm``, ``min_center_thickness_mm``,
+    ``bounding_box_max_mm``, ``prism_box_mm``, ``prism_footprint_box_mm``, ``min_center_thickness_mm``,
     ``min_edge_thickness_mm``, ``min_prism_thickness_mm``, ``eye_relief_mm``,
     and the ray counts ``rays_traced``, ``rays_failed``. None where a figure
     does not apply (no tunable lens, no prism, no glass element) or no ray of
@@ -301,6 +301,10 @@ def package(model: IniModel, solids: bool = True) -> dict:
     prism_faces = {i for run in prisms(system) if max(run) < vw for i in run
                    if surf[i].interaction in ("refract", "reflect", "tir")}
     pbox = _box([p for (i, _, _), p in zip(items, pts) if i in prism_faces]) if prism_faces else None
+    # The light's own extent in the prism: the ray set's hits on its faces (a prism can be no
+    # smaller; its clear apertures, above, are what is built).
+    fbox = (_box(geo.to_global([(i, hits[ok, col[i]], None) for i in sorted(prism_faces) if i in col]))
+            if prism_faces else None)
 
     # ----------------------------------------------------------- thickness
     centre, edge = [], []
@@ -343,6 +347,7 @@ def package(model: IniModel, solids: bool = True) -> dict:
         "bounding_box_min_mm": None if box is None else [float(v) for v in box[0]],
         "bounding_box_max_mm": None if box is None else [float(v) for v in box[1]],
         "prism_box_mm": None if pbox is None else [float(v) for v in pbox[1] - pbox[0]],
+        "prism_footprint_box_mm": None if fbox is None else [float(v) for v in fbox[1] - fbox[0]],
         "min_center_thickness_mm": _min_finite(centre),
         "min_edge_thickness_mm": _min_finite(edge),
         "min_prism_thickness_mm": p_min,
