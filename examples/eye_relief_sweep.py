@@ -199,6 +199,10 @@ def plot(points: list[dict], path: Path, title: str) -> None:
         er = [p[key]["eye_relief_mm"] for p in points]
         ax[0].plot(er, [p[key]["pa_max"] for p in points], "o-", label=f"PA max, {lab}")
         ax[0].plot(er, [p[key]["pa_mean"] for p in points], "s--", label=f"PA mean, {lab}")
+        for x, p in zip(er, points):  # fields that lost a marginal ray have no PA (Eq. 12)
+            if p[key]["pa_fields_failed"]:
+                ax[0].annotate(f"{p[key]['pa_fields_failed']} fields\nwithout PA", (x, p[key]["pa_max"]),
+                               fontsize=6, textcoords="offset points", xytext=(-40, 6))
         ax[1].plot(er, [p[key]["contrast_nyquist_mean"] for p in points], "o-", label=lab)
         ax[2].plot(er, [-(p[key]["window_crossing_mm"] or [np.nan] * 2)[1] for p in points], "o-",
                    label=f"y, {lab}")
@@ -281,9 +285,9 @@ def main(argv=None) -> int:
                "open": names, "open_factor": args.open_factor, "like": args.like,
                "iterations": args.iterations, "points": points}
         write_json(out / "sweep.json", doc)
+    opened = ", ".join(f"{k} x{v:.3g}" for k, v in points[0]["opened"].items())
     plot(points, out / "eye_relief_sweep.png",
-         f"{Path(design.path).name}: window moved along the line of sight, {', '.join(names)} "
-         f"opened x{args.open_factor:g}, then {args.iterations} lm-hinge iterations ({args.like} merit); "
+         f"{Path(design.path).name}: window moved along the line of sight, apertures opened ({opened}), then {args.iterations} lm-hinge iterations ({args.like} merit); "
          f"CDP {args.depth:g} D, stride {args.stride[0]}x{args.stride[1]}")
     print(f"wrote {out / 'sweep.json'} and {out / 'eye_relief_sweep.png'}")
     return 0
