@@ -120,6 +120,16 @@ def _open(raw: dict, names: list[str], factor: float, path: str) -> dict[str, fl
     return got
 
 
+def _stage(raw: dict, like: str, path: str) -> dict:
+    """The design's optimization stage named ``like`` (``--like``)."""
+    stages = raw.get("optimize", {}).get("stages", [])
+    for st in stages:
+        if st.get("name") == like:
+            return st
+    raise ValueError(f"--like {like!r}: {path} has no optimization stage of that name "
+                     f"(it has {', '.join(str(st.get('name')) for st in stages) or 'none'})")
+
+
 def moved(design, eye_relief_mm: float, open_names: list[str], open_factor: float, like: str,
           iterations: int) -> tuple[dict, dict[str, float]]:
     """The design's table with the window moved to ``eye_relief_mm``, apertures opened, one stage
@@ -153,10 +163,7 @@ def moved(design, eye_relief_mm: float, open_names: list[str], open_factor: floa
         cur = Design.from_dict(raw, design.path)
 
     stages = raw["optimize"].get("stages", [])
-    base = next((s for s in stages if s.get("name") == like), None)
-    if base is None:
-        raise ValueError(f"--like {like!r}: {design.path} has no optimization stage of that name "
-                         f"(it has {', '.join(str(s.get('name')) for s in stages) or 'none'})")
+    base = _stage(raw, like, design.path)
     stage = {"name": "sweep", "solver": "lm-hinge", "iterations": int(iterations)}
     for key in ("targets", "weights", "variables"):
         if key in base:
@@ -250,9 +257,21 @@ def main(argv=None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     depth = f"{args.depth:g}"
+    names = [n.strip() for n in args.open.split(",") if n.strip()]
+    try:  # every name checked before anything is written
+        if design.ini is None:
+            raise ValueError(f"--design {design.path}: not an InI design (no [ini] section)")
+        for name in names:
+            _surface_index(design.raw, name, design.path)
+        _stage(design.raw, args.like, design.path)
+        if args.depth not in [float(v) for v in design.raw["ini"]["cdp_diopters"]]:
+            raise ValueError(f"--depth {args.depth:g}: {design.path} has CDP states "
+                             f"{', '.join(f'{float(v):g}' for v in design.raw['ini']['cdp_diopters'])} D only")
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    names = [n.strip() for n in args.open.split(",") if n.strip()]
     points = []
     for er in args.eye_relief:
         t0 = time.perf_counter()
@@ -287,7 +306,8 @@ def main(argv=None) -> int:
         write_json(out / "sweep.json", doc)
     opened = ", ".join(f"{k} x{v:.3g}" for k, v in points[0]["opened"].items())
     plot(points, out / "eye_relief_sweep.png",
-         f"{Path(design.path).name}: window moved along the line of sight, apertures opened ({opened}), then {args.iterations} lm-hinge iterations ({args.like} merit); "
+         f"{Path(design.path).name}: window moved along the line of sight, apertures opened ({opened}), "
+         f"then {args.iterations} lm-hinge iterations ({args.like} merit); "
          f"CDP {args.depth:g} D, stride {args.stride[0]}x{args.stride[1]}")
     print(f"wrote {out / 'sweep.json'} and {out / 'eye_relief_sweep.png'}")
     return 0
