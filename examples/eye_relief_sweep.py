@@ -28,16 +28,17 @@ For each eye relief of ``--eye-relief`` (mm):
 
 Writes ``OUT/sweep.json`` (every figure of both analyses, each point's files
 under ``OUT/er_<mm>/``) and ``OUT/eye_relief_sweep.png`` (PA max and mean,
-contrast mean and the real window's offset against the eye relief). A scaled
-copy of a design keeps its PA at the same *relative* eye relief: a prism scaled
-by s with its window at s·E has the figures of the original at E (the
-wearable design's prism is the bench one scaled by 0.6; its 18.3 mm eye relief
-is 30.5 mm on the bench design's scale).
+contrast mean and the real window's offset against the eye relief). A design
+scaled as a whole by s, its window at s·E, has the original's PA at E (Eq. 12
+is a ratio of lengths): the sweep reads an eye relief in units of the prism's
+size. The wearable design's prism is the bench one scaled by 0.6, so its 18.3 mm
+eye relief is 30.5 mm on the bench design's scale (its beams and window are not
+scaled with it, so this is a comparison of prisms, not of whole designs).
 
     python examples/eye_relief_sweep.py --out DIR \\
         --eye-relief 17.56,20,22.5,25,28.2,30.5 --iterations 30
 
-(about 2 minutes per point on 2 cores).
+(9 to 12 minutes per point on 2 cores; most of it the package block's derivatives.)
 """
 
 from __future__ import annotations
@@ -70,6 +71,13 @@ def _numbers(text: str, flag: str) -> list[float]:
     return vals
 
 
+def _stride(text: str) -> list[int]:
+    vals = _numbers(text, "--stride")
+    if len(vals) != 2 or any(v != int(v) for v in vals):
+        raise argparse.ArgumentTypeError(f"--stride = {text!r}: expected two whole numbers, e.g. 4,2")
+    return [int(v) for v in vals]
+
+
 def _surface_index(raw: dict, name: str, path: str, flag: str = "--open") -> int:
     for i, s in enumerate(raw.get("surfaces", [])):
         if s.get("name") == name:
@@ -84,6 +92,17 @@ def _reach(ap: dict, f: float) -> float:
         return f * float(ap["radius"]) + math.hypot(dx, dy)
     hx, hy = (float(v) for v in ap["half_width"])
     return math.hypot(f * hx + dx, f * hy + dy)
+
+
+def _reach_factor(ap: dict, lim: float) -> float:
+    """The scale ``f`` at which :func:`_reach` equals ``lim`` (closed form)."""
+    dx, dy = (abs(float(v)) for v in ap.get("decenter", (0.0, 0.0)))
+    if "radius" in ap:
+        return (lim - math.hypot(dx, dy)) / float(ap["radius"])
+    hx, hy = (float(v) for v in ap["half_width"])
+    # (f hx + dx)^2 + (f hy + dy)^2 = lim^2, the positive root
+    a, b, c = hx * hx + hy * hy, 2.0 * (hx * dx + hy * dy), dx * dx + dy * dy - lim * lim
+    return (-b + math.sqrt(b * b - 4.0 * a * c)) / (2.0 * a)
 
 
 def _open(raw: dict, names: list[str], factor: float, path: str) -> dict[str, float]:
@@ -105,11 +124,7 @@ def _open(raw: dict, names: list[str], factor: float, path: str) -> dict[str, fl
         if radius is not None and math.isfinite(float(radius)) and s.get("conic", 0.0) >= -1e-12:
             lim = 0.98 * abs(float(radius))
             if _reach(ap, f) > lim:
-                lo, hi = 1.0, f
-                for _ in range(60):
-                    mid = 0.5 * (lo + hi)
-                    lo, hi = (mid, hi) if _reach(ap, mid) <= lim else (lo, mid)
-                f = lo
+                f = max(1.0, _reach_factor(ap, lim))
         if "semi_diameter" in s and s.get("aperture") is None:
             s["semi_diameter"] = float(s["semi_diameter"]) * f
         elif "radius" in ap:
@@ -143,8 +158,6 @@ def moved(design, eye_relief_mm: float, open_names: list[str], open_factor: floa
     if "global_position" not in raw["surfaces"][vw]:
         raise DesignError(design.path, f"surfaces[{vw}].global_position", None,
                           "the viewing window needs a global position to be moved", surface=vw_name)
-    # The eye relief is measured to the nearest ray hit on the last surface, and the hits
-    # follow the EI layout, which follows the window: a few fixed-point steps.
     opened = _open(raw, open_names, open_factor, design.path)
     # A CDP state may sit at the tunable lens's range limit (the bench design's 0 D state
     # does): the package block's differences step past it. The range is not what is swept.
@@ -152,6 +165,8 @@ def moved(design, eye_relief_mm: float, open_names: list[str], open_factor: floa
     if "range_diopters" in tun:
         lo, hi = (float(v) for v in tun["range_diopters"])
         tun["range_diopters"] = [lo - 2.0, hi + 2.0]
+    # The eye relief is measured to the nearest ray hit on the last surface, and the hits
+    # follow the EI layout, which follows the window: a few fixed-point steps.
     cur = Design.from_dict(raw, design.path)
     for _ in range(6):
         model = IniModel(cur)
@@ -240,7 +255,7 @@ def main(argv=None) -> int:
     ap.add_argument("--open-factor", type=float, default=1.6)
     ap.add_argument("--like", default="balance", help="the design's stage whose targets and weights are used")
     ap.add_argument("--iterations", type=int, default=30)
-    ap.add_argument("--stride", default="4,2", type=lambda t: [int(v) for v in _numbers(t, "--stride")])
+    ap.add_argument("--stride", default="4,2", type=_stride)
     ap.add_argument("--depth", type=float, default=1.0, help="CDP state analysed (diopters)")
     args = ap.parse_args(argv)
     if not (math.isfinite(args.open_factor) and args.open_factor >= 1.0):
@@ -275,13 +290,13 @@ def main(argv=None) -> int:
     points = []
     for er in args.eye_relief:
         t0 = time.perf_counter()
-        d = out / f"er_{er:g}"
-        d.mkdir(exist_ok=True)
         try:
             raw, opened = moved(design, er, names, args.open_factor, args.like, args.iterations)
         except ValueError as e:  # DesignError included
             print(f"error: {e}", file=sys.stderr)
             return 2
+        d = out / f"er_{er:g}"
+        d.mkdir(exist_ok=True)
         start_path = d / f"er_{er:g}.toml"
         write_design(start_path, raw, [f"{design.path} with its window at {er:g} mm eye relief, "
                                        "apertures opened " + ", ".join(f"{k} x{v:.3g}" for k, v in opened.items())

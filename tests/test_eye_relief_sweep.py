@@ -47,6 +47,9 @@ def test_the_window_lands_at_the_eye_relief_asked_for():
 def test_reach_of_scaled_apertures():
     assert ers._reach({"radius": 2.0, "decenter": [3.0, 4.0]}, 1.5) == 3.0 + 5.0
     assert ers._reach({"half_width": [1.0, 2.0], "decenter": [0.0, -1.0]}, 2.0) == math.hypot(2.0, 5.0)
+    for ap in ({"radius": 2.0, "decenter": [3.0, 4.0]}, {"half_width": [1.0, 2.0], "decenter": [0.5, -1.0]}):
+        f = ers._reach_factor(ap, 9.0)
+        assert f > 1.0 and math.isclose(ers._reach(ap, f), 9.0, rel_tol=1e-12)
 
 
 def test_bad_names_are_refused():
@@ -71,3 +74,6 @@ def test_the_command_line_refuses_bad_numbers(capsys):
     with pytest.raises(SystemExit) as e:
         ers.main(["--out", "unused", "--open-factor", "0.5"])
     assert e.value.code == 2 and "--open-factor = 0.5" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as e:
+        ers.main(["--out", "unused", "--stride", "4.5,2"])
+    assert e.value.code == 2 and "--stride = '4.5,2'" in capsys.readouterr().err
