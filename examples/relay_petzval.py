@@ -246,9 +246,9 @@ def sag(c, h):
 
 # ----------------------------------------------------------------- the ray bundle
 
-def bundle(design_path: Path):
+def bundle(design_path: Path, first_face: str = LENSES[0]):
     """The design's ray bundle at the AA plane, from the rays' hits on AA and on the first relay
-    face: ``(rays, marginal)``. ``rays`` (N, 5): the real rays (x, y, dx/dz, dy/dz, CDP state) of
+    face (``first_face``): ``(rays, marginal)``. ``rays`` (N, 5): the real rays (x, y, dx/dz, dy/dz, CDP state) of
     the package figures (:func:`lfsim.ini.package.ray_set`); ``marginal`` (K, 2): per CDP state,
     the central lenslet's centre-field +x marginal ray relative to its chief ray (y, dy/dz)."""
     from lfsim.design.design import load
@@ -258,14 +258,14 @@ def bundle(design_path: Path):
 
     model = IniModel(load(design_path))
     names = [s.name for s in model.system.surfaces]
-    ia, i1 = names.index("AA"), names.index(LENSES[0])
+    ia, i1 = names.index("AA"), names.index(first_face)
     s, m, n, rho, k, lens = ray_set(model)
     J = trace_rays_jacobian(model, s, m, n, rho, k, [], record=[ia, i1], derivatives=False)
     frames = model.tracer.frames_numpy(model.tracer.params(values=model.values0))
     p0 = J.surf[:, 0, :] + model.lenslet_center(m, n)
     p1 = J.surf[:, 1, :]
     raw = tomllib.loads(Path(design_path).read_text())
-    c = _curvature(next(x for x in raw["surfaces"] if x.get("name") == LENSES[0]))
+    c = _curvature(next(x for x in raw["surfaces"] if x.get("name") == first_face))
     dz = frames[i1][1][2] + sag(c, np.hypot(p1[:, 0], p1[:, 1])) - frames[ia][1][2]
     rays = np.column_stack([p0, (p1 - p0) / dz[:, None], k])
     K, L, F, R = len(model.depths), len(lens), len(FIELDS), len(PUPIL)

@@ -117,3 +117,28 @@ def test_plain_lens_refuses_ini_stages(scenes, tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "--stages" in err and "full" in err
     assert not (tmp_path / "o").exists()
+
+
+def test_a_curvature_variable_is_bounded_by_its_clear_aperture(scenes):
+    """A curvature variable's bounds keep its surface reaching its clear aperture (the loader's
+    rule, |c|·h·√(1 + k) < 1): a step past it would end a stage on a design no file can hold.
+    L2_front (semi-diameter 8 mm, sphere) given min = −1: its bound is −1/8."""
+    import tomllib
+
+    from lfsim.design import Design
+    from lfsim.design.errors import DesignError
+
+    raw = tomllib.loads((scenes / "cooke_triplet_optimize.toml").read_text())
+    raw["optimize"]["variables"][2] = {"name": "L2_front.curvature", "min": -1.0, "max": 0.0}
+    d = Design.from_dict(raw, "cooke")
+    m = ImagingMerit(d, d.optimize)
+    lo, hi = m.bounds
+    assert m.cols[2].name == "L2_front.curvature"
+    assert lo[2] == pytest.approx(-1.0 / 8.0, rel=1e-8) and lo[2] > -1.0 / 8.0 and hi[2] == 0.0
+    assert lo[1] == -0.05 and hi[1] == 0.05  # bounds tighter than the reach stay as given
+    raw["surfaces"][1]["thickness"] = 12.0  # room for so deep a face
+    raw["surfaces"][2]["radius"] = 1.0 / lo[2]
+    Design.from_dict(raw, "cooke")  # at the bound: a valid design
+    raw["surfaces"][2]["radius"] = 1.0 / (lo[2] * (1.0 + 1e-6))
+    with pytest.raises(DesignError, match="reaches only"):
+        Design.from_dict(raw, "cooke")

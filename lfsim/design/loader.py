@@ -310,8 +310,10 @@ def _surface(ctx: _Ctx, raw, i: int, names: dict, arrays: dict) -> Surface:
     return s
 
 
-def _check_reach(ctx: _Ctx, s: Surface, shape: Surface, i: int, arrays):
-    """A clear aperture must lie inside the domain of the base conic."""
+def clear_extent(s: Surface, arrays) -> tuple[float | None, str | None]:
+    """(largest distance from the axis a ray may meet ``s`` at, the key that sets it): its
+    clear aperture's (or semi-diameter's) reach, within one lenslet cell on an array; None
+    where nothing bounds it."""
     extent = None
     key = None
     if s.aperture is not None:
@@ -321,6 +323,27 @@ def _check_reach(ctx: _Ctx, s: Surface, shape: Surface, i: int, arrays):
         cell = 0.5 * math.hypot(*a.pitch)
         extent = cell if extent is None else min(extent, cell)
         key = key or "array"
+    return extent, key
+
+
+def curvature_limit(surfaces, i: int, arrays) -> float:
+    """The largest |curvature| surface ``i``'s base conic may take and still reach the clear
+    extent of ``i`` and of every surface that shares its shape (``same_as``):
+    ``1 / (extent·√(1 + k))``; inf where nothing bounds it (no extent, or 1 + k ≤ 0)."""
+    lim = math.inf
+    k = surfaces[i].conic
+    for j, s in enumerate(surfaces):
+        if j != i and s.same_as != i:
+            continue
+        extent, _ = clear_extent(s, arrays)
+        if extent and 1.0 + k > 0.0:
+            lim = min(lim, 1.0 / (extent * math.sqrt(1.0 + k)))
+    return lim
+
+
+def _check_reach(ctx: _Ctx, s: Surface, shape: Surface, i: int, arrays):
+    """A clear aperture must lie inside the domain of the base conic."""
+    extent, key = clear_extent(s, arrays)
     if extent is None or shape.curvature == 0.0:
         return
     ce = shape.curvature * extent  # products, not powers: huge values give inf, not OverflowError

@@ -79,6 +79,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..design.design import Design
+from ..design.loader import curvature_limit
 from ..ini.model import IniModel
 from ..ini.subsystems import Subsystems, field_grid, sample, trace_rays_jacobian
 from ..ini.views import StackedViews
@@ -249,7 +250,14 @@ def columns(design: Design, spec) -> list[Column]:
             for k in range(len(ini.cdp_diopters)):
                 out.append(Column(f"{tl}.power", k, v.lower, v.upper))
         else:
-            out.append(Column(v.name, None, v.lower, v.upper))
+            lo, hi = v.lower, v.upper
+            surf, _, key = v.name.partition(".")
+            if key == "curvature":  # the surface must keep reaching its clear aperture (the loader's rule)
+                names = [s.name for s in design.system.surfaces]
+                if surf in names:
+                    lim = curvature_limit(design.system.surfaces, names.index(surf), design.system.arrays)
+                    lo, hi = max(lo, -lim * (1.0 - 1e-9)), min(hi, lim * (1.0 - 1e-9))
+            out.append(Column(v.name, None, lo, hi))
     return out
 
 
