@@ -506,6 +506,19 @@ def search(S: Search, glasses, lam: float, starts: int, seed: int, warm=()):
     return x, P, feasible, origin
 
 
+def parse_glasses(ap, text: str) -> tuple:
+    """Four catalog glasses from a ``--glasses`` value, or the parser's one-line error."""
+    a = tuple(g.strip() for g in text.split(","))
+    if len(a) != 4:
+        ap.error(f"--glasses {text!r}: four glasses, one per singlet")
+    for g in a:
+        try:
+            lookup(g)
+        except ValueError as e:
+            ap.error(f"--glasses {text!r}: {e}")
+    return a
+
+
 def main(argv=None) -> int:
     ap = OneLineParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--design", default=str(ROOT / "scenes" / "ini_wearable.toml"),
@@ -537,16 +550,8 @@ def main(argv=None) -> int:
         limits = [math.inf if v.strip().lower() == "none" else float(v) for v in args.track_limits.split(",")]
     except ValueError:
         ap.error(f"--track-limits {args.track_limits!r}: numbers in mm, comma separated, or 'none'")
-    assignments = [tuple(g.strip() for g in a.split(",")) for a in (args.glasses or [
+    assignments = [parse_glasses(ap, a) for a in (args.glasses or [
         "N-LAK22,N-LAK22,N-LAK22,N-LAK22", "N-LASF31A,N-LASF31A,N-LASF31A,N-LASF31A"])]
-    for a in assignments:
-        if len(a) != 4:
-            ap.error(f"--glasses {','.join(a)!r}: four glasses, one per singlet")
-        for g in a:
-            try:
-                lookup(g)
-            except ValueError as e:
-                ap.error(f"--glasses {','.join(a)!r}: {e}")
 
     from lfsim.design.design import load
     from lfsim.ini.model import IniModel

@@ -48,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 import tomli_w
-from relay_petzval import Rules, Search, bundle, dispersion, read_relay, search, seidel, write_variant
+from relay_petzval import Rules, Search, bundle, dispersion, parse_glasses, read_relay, search, seidel, write_variant
 
 from lfsim.cli import OneLineParser
 from lfsim.fileio import write_json, write_text
@@ -190,6 +190,9 @@ def main(argv=None) -> int:
                     help="least distance from the last relay lens to S1's vertex plane, mm (default: %(default)s)")
     ap.add_argument("--tunable-footprint", type=float, default=9.7,
                     help="largest paraxial footprint on the tunable lens, mm (default: %(default)s)")
+    ap.add_argument("--tunable-range", default="9,19",
+                    help="tunable-lens powers the fitted relay may use at the CDP states, diopters: inside the "
+                         "lens's range, with room for the optimizer (default: %(default)s)")
     ap.add_argument("--clear-diameter", type=float, default=23.2, help="largest lens clear diameter, mm")
     ap.add_argument("--colour-max", type=float, default=1.0,
                     help="largest first-order colour, as a multiple of --base's relay's (default: %(default)s)")
@@ -202,14 +205,13 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if not (0.1 <= args.scale <= 2.0):
         ap.error(f"--scale {args.scale}: between 0.1 and 2")
-    glasses = tuple(g.strip() for g in args.glasses.split(","))
-    if len(glasses) != 4:
-        ap.error(f"--glasses {args.glasses!r}: four glasses, one per singlet")
-    for g in glasses:
-        try:
-            lookup(g)
-        except ValueError as e:
-            ap.error(f"--glasses {args.glasses!r}: {e}")
+    try:
+        t_lo, t_hi = (float(v) for v in args.tunable_range.split(","))
+    except ValueError:
+        ap.error(f"--tunable-range {args.tunable_range!r}: two numbers of diopters, comma separated")
+    if not t_lo < t_hi:
+        ap.error(f"--tunable-range {args.tunable_range!r}: the first below the second")
+    glasses = parse_glasses(ap, args.glasses)
     from lfsim.design.design import load
     from lfsim.ini.model import IniModel
     from lfsim.ini.package import package
@@ -238,7 +240,7 @@ def main(argv=None) -> int:
     M0, a0, b0, (tx, ty) = relay_target(M, P, phis_p, s, z_aa - base.z_mla_back, k1)
     max_len = args.track - (z_aa - z_disp) - s * rest
     rules = Rules(clear_diameter=args.clear_diameter, max_length=max_len, colour_max=args.colour_max,
-                  min_back=args.back)
+                  min_back=args.back, tunable_range=(t_lo * 1e-3, t_hi * 1e-3))
     S = Search(ref, phis_ref, rays, marginal, rules, k1=k1)
     # the prism design's first order in place of the base relay's
     S.phis = phis_p
@@ -344,7 +346,8 @@ def _starts(x0):
 
 def _header(args, prism: Path, base: Path) -> str:
     return (f"# Made by: python examples/wearable_start.py --prism {prism} --base {base} --scale {args.scale:g} "
-            f"--glasses {args.glasses} --track {args.track:g} --back {args.back:g} --margin {args.margin:g}\n")
+            f"--glasses {args.glasses} --track {args.track:g} --back {args.back:g} --margin {args.margin:g} "
+            f"--tunable-range {args.tunable_range} --pupil-weight {args.pupil_weight:g}\n")
 
 
 if __name__ == "__main__":
