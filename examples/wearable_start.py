@@ -190,9 +190,9 @@ def main(argv=None) -> int:
                     help="least distance from the last relay lens to S1's vertex plane, mm (default: %(default)s)")
     ap.add_argument("--tunable-footprint", type=float, default=9.7,
                     help="largest paraxial footprint on the tunable lens, mm (default: %(default)s)")
-    ap.add_argument("--tunable-range", default="9,19",
-                    help="tunable-lens powers the fitted relay may use at the CDP states, diopters: inside the "
-                         "lens's range, with room for the optimizer (default: %(default)s)")
+    ap.add_argument("--tunable-range", default="8.3,20",
+                    help="tunable-lens powers the fitted relay may use at the CDP states, diopters (default: the "
+                         "EL-10-30-C's range, %(default)s)")
     ap.add_argument("--clear-diameter", type=float, default=23.2, help="largest lens clear diameter, mm")
     ap.add_argument("--colour-max", type=float, default=1.0,
                     help="largest first-order colour, as a multiple of --base's relay's (default: %(default)s)")
