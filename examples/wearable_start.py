@@ -146,15 +146,14 @@ def scale_prism(raw_prism: dict, s: float, z_s1: float, z_new: float) -> list[di
     return out
 
 
-def trim_apertures(path: Path, margin: float) -> dict:
-    """Each prism face's rectangle about its footprint (the package ray set's local hits) plus
-    ``margin``: ``{name: {"type", "half_width", "decenter"}}``."""
-    from lfsim.design.design import load
+def trim_apertures(design, margin: float) -> dict:
+    """Each prism face's rectangle about its footprint (the package ray set's local hits in
+    ``design``) plus ``margin``: ``{name: {"type", "half_width", "decenter"}}``."""
     from lfsim.ini.model import IniModel
     from lfsim.ini.package import ray_set
     from lfsim.ini.subsystems import trace_rays_jacobian
 
-    model = IniModel(load(path))
+    model = IniModel(design)
     names = [x.name for x in model.system.surfaces]
     idx = [names.index(n) for n in PRISM]
     s, m, n, rho, k, _ = ray_set(model)
@@ -293,11 +292,12 @@ def main(argv=None) -> int:
         raw["surfaces"][names.index(t["name"])] = t
     raw["ini"]["viewing_window"] = raw_p["ini"]["viewing_window"]
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     tag = f"{s:g}".replace(".", "p")
     dst = out / f"ini_wearable_s{tag}.toml"
-    write_text(dst, tomli_w.dumps(raw))
-    aps, failed, total = trim_apertures(dst, args.margin)
+    from lfsim.design import Design
+
+    aps, failed, total = trim_apertures(Design.from_dict(raw, str(dst)), args.margin)
+    out.mkdir(parents=True, exist_ok=True)
     names = [t.get("name") for t in raw["surfaces"]]
     for name, a in aps.items():
         raw["surfaces"][names.index(name)]["aperture"] = a
